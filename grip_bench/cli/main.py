@@ -1,0 +1,63 @@
+"""``grip-bench`` entry point: argument parsing, subcommand dispatch, error convention.
+
+Exit codes (DESIGN 4.2): 0 success, 1 bad input (one line ``error: <file>: <what>``),
+2 bad usage (argparse), 130 interrupted. ``--debug`` shows tracebacks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .. import __version__
+from ..errors import GripBenchError
+
+# Each module defines ``register(subparsers)`` and sets ``func`` on its parser.
+# Later issues append their subcommand modules here.
+SUBCOMMANDS = ["ls"]
+
+DESCRIPTION = """\
+grip-bench: train and evaluate hand-object interaction motion synthesis
+(GRIP and its baselines) on SynthGRAB (built in) or real GRAB data.
+
+Units inside are metres, radians and seconds; reports use mm, cm^3 and %."""
+
+EPILOG = """\
+examples:
+  grip-bench ls metrics          list registered metrics with unit and direction
+  grip-bench <command> --help    help for one command
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="grip-bench", description=DESCRIPTION, epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"grip-bench {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in SUBCOMMANDS:
+        importlib.import_module(f"{__package__}.{name.replace('-', '_')}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except GripBenchError as e:
+        if args.debug:
+            raise
+        print(f"error: {e.message}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,207 @@
+"""Restricted loading of pickles and ``.npz`` files: data only, never code.
+
+GRAB stores dict-valued keys as 0-d object arrays (pickled), and the official
+MANO / SMPL-X ``.pkl`` files hold ``chumpy`` arrays and scipy sparse matrices.
+Plain ``pickle`` would execute whatever a file names. The unpickler here
+resolves only a short allow-list of classes (numpy arrays, dtypes and scalars,
+builtin containers and numbers) and refuses everything else *before* calling
+it, so nothing in a hostile file runs.
+
+Optional extras for licensed model files:
+- ``allow_chumpy=True`` maps ``chumpy.ch.Ch`` to a shell that keeps only the
+  wrapped array (chumpy itself is never imported);
+- ``allow_sparse=True`` admits scipy's csc/csr/coo matrices (the MANO joint
+  regressor), which are rebuilt from their arrays.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import pickle
+import zipfile
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError, UnsafeFileError
+
+_NUMPY_CORE = ("numpy.core.multiarray", "numpy._core.multiarray")
+_ALLOWED: set[tuple[str, str]] = {
+    *((m, "_reconstruct") for m in _NUMPY_CORE),
+    *((m, "scalar") for m in _NUMPY_CORE),
+    ("numpy", "ndarray"),
+    ("numpy", "dtype"),
+    ("builtins", "dict"),
+    ("builtins", "list"),
+    ("builtins", "tuple"),
+    ("builtins", "set"),
+    ("builtins", "frozenset"),
+    ("builtins", "str"),
+    ("builtins", "bytes"),
+    ("builtins", "int"),
+    ("builtins", "float"),
+    ("builtins", "complex"),
+    ("builtins", "bool"),
+    ("collections", "OrderedDict"),
+}
+# numpy dtype classes pickled by numpy>=1.25 (numpy.dtypes.Float64DType, ...)
+_DTYPE_MODULES = ("numpy.dtypes",)
+
+_SPARSE = {
+    ("scipy.sparse.csc", "csc_matrix"),
+    ("scipy.sparse._csc", "csc_matrix"),
+    ("scipy.sparse.csr", "csr_matrix"),
+    ("scipy.sparse._csr", "csr_matrix"),
+    ("scipy.sparse.coo", "coo_matrix"),
+    ("scipy.sparse._coo", "coo_matrix"),
+}
+
+
+class ChumpyArray:
+    """Stand-in for ``chumpy.ch.Ch``: keeps the wrapped value ``x`` only."""
+
+    def __setstate__(self, state: Any) -> None:
+        self.x = state.get("x") if isinstance(state, dict) else None
+
+    def __array__(self, dtype=None, copy=None):
+        return np.asarray(self.x, dtype=dtype)
+
+
+class _SparseShell:
+    """Collects a scipy sparse matrix's pickled state without importing scipy code paths."""
+
+    def __init__(self, kind: str):
+        self.kind = kind
+        self.state: dict = {}
+
+    def __setstate__(self, state: Any) -> None:
+        self.state = dict(state) if isinstance(state, dict) else {}
+
+    def toarray(self) -> np.ndarray:
+        import scipy.sparse as sp
+
+        s = self.state
+        shape = tuple(s.get("_shape", s.get("shape")))
+        if self.kind == "coo_matrix":
+            return sp.coo_matrix((s["data"], (s["row"], s["col"])), shape=shape).toarray()
+        cls = sp.csc_matrix if self.kind == "csc_matrix" else sp.csr_matrix
+        return cls((s["data"], s["indices"], s["indptr"]), shape=shape).toarray()
+
+
+def _reconstructor(cls, base, state):
+    """Safe replacement of ``copyreg._reconstructor`` for our shell classes only."""
+    obj = cls.__new__(cls) if not callable(cls) or isinstance(cls, type) else cls()
+    return obj
+
+
+class RestrictedUnpickler(pickle.Unpickler):
+    """An unpickler that resolves only plain-data classes (see module docstring)."""
+
+    def __init__(self, file, *, allow_chumpy: bool = False, allow_sparse: bool = False,
+                 source: str = "<stream>"):
+        super().__init__(file, encoding="latin1")
+        self.allow_chumpy = allow_chumpy
+        self.allow_sparse = allow_sparse
+        self.source = source
+
+    def find_class(self, module: str, name: str):
+        if (module, name) in _ALLOWED or module in _DTYPE_MODULES:
+            return super().find_class(module, name)
+        if self.allow_chumpy and module.startswith("chumpy"):
+            return ChumpyArray
+        if self.allow_sparse and (module, name) in _SPARSE:
+            return _make_sparse_factory(name)
+        if (self.allow_chumpy or self.allow_sparse) and (module, name) == ("copyreg", "_reconstructor"):
+            return _reconstructor
+        if (self.allow_chumpy or self.allow_sparse) and (module, name) == ("builtins", "object"):
+            return object
+        raise UnsafeFileError(
+            f"refused to unpickle '{module}.{name}': only numpy arrays and plain data are accepted",
+            self.source,
+        )
+
+
+def _make_sparse_factory(kind: str):
+    class _Sparse(_SparseShell):
+        def __init__(self, *args, **kwargs):
+            super().__init__(kind)
+
+        def __new__(cls, *args, **kwargs):
+            obj = object.__new__(cls)
+            obj.kind = kind
+            obj.state = {}
+            return obj
+
+    _Sparse.__name__ = kind
+    return _Sparse
+
+
+def load_pickle(path: str | os.PathLike, *, allow_chumpy: bool = False,
+                allow_sparse: bool = False) -> Any:
+    """Load a pickle file with the restricted unpickler; chumpy/sparse values become ndarrays."""
+    try:
+        with open(path, "rb") as f:
+            obj = RestrictedUnpickler(f, allow_chumpy=allow_chumpy, allow_sparse=allow_sparse,
+                                      source=str(path)).load()
+    except UnsafeFileError:
+        raise
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError) as e:
+        raise InputError(f"not a readable pickle ({type(e).__name__}: {e})", path) from e
+    return _to_plain(obj)
+
+
+def _to_plain(obj: Any) -> Any:
+    """Replace chumpy and sparse shells by ndarrays, recursively through containers."""
+    if isinstance(obj, ChumpyArray):
+        return np.asarray(obj.x)
+    if isinstance(obj, _SparseShell):
+        return obj.toarray()
+    if isinstance(obj, dict):
+        return {k: _to_plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return type(obj)(_to_plain(v) for v in obj)
+    return obj
+
+
+def _read_npy(raw: bytes, source: str) -> np.ndarray:
+    """Read one ``.npy`` member; object arrays go through the restricted unpickler."""
+    f = io.BytesIO(raw)
+    version = np.lib.format.read_magic(f)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
+    elif version == (2, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
+    else:  # (3, 0): utf8 header, same layout as 2.0
+        shape, fortran, dtype = np.lib.format._read_array_header(f, version)
+    if dtype.hasobject:
+        arr = RestrictedUnpickler(f, source=source).load()
+        return _to_plain(arr) if not isinstance(arr, np.ndarray) else arr
+    f.seek(0)
+    return np.lib.format.read_array(f, allow_pickle=False)
+
+
+def load_npz(path: str | os.PathLike) -> dict[str, Any]:
+    """Load every array of an ``.npz`` safely. 0-d object arrays are unwrapped with ``.item()``.
+
+    Raises :class:`InputError` naming the file (and key) for a truncated or
+    corrupt archive, and :class:`UnsafeFileError` for pickled code.
+    """
+    out: dict[str, Any] = {}
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError) as e:
+        raise InputError(f"not a readable .npz archive ({e})", path) from e
+    with zf:
+        for member in zf.namelist():
+            key = member[:-4] if member.endswith(".npy") else member
+            try:
+                arr = _read_npy(zf.read(member), f"{path}: {key}")
+            except UnsafeFileError:
+                raise
+            except (zipfile.BadZipFile, ValueError, EOFError, OSError, pickle.UnpicklingError) as e:
+                raise InputError(f"corrupt array ({type(e).__name__}: {e})", f"{path}: {key}") from e
+            if isinstance(arr, np.ndarray) and arr.dtype.hasobject and arr.shape == ():
+                arr = arr.item()
+            out[key] = arr
+    return out
