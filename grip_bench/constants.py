@@ -44,3 +44,6 @@ GRAVITY = 9.81
 
 # --- Rotations ---------------------------------------------------------------
 ROT_EPS = 1e-6  # small-angle switch for series expansions
+
+# --- World frame --------------------------------------------------------------
+UP = (0.0, 1.0, 0.0)  # SynthGRAB / procedural body: y up, body faces +z
