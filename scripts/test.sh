@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Set up a virtual environment (if needed) and run the default test suite.
+# torch 2.13.0 is installed first: it is the CPU build available offline, and it
+# satisfies the package's torch requirement so pip pulls no CUDA wheels.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=${VENV:-.venv}
+[ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
+. "$VENV/bin/activate"
+python -m pip install -q --upgrade pip
+python -m pip install -q torch==2.13.0
+python -m pip install -q -e ".[dev,smplx]"
+python -m pytest -q -p no:cacheprovider "$@"
