@@ -1,0 +1,130 @@
+"""ANet, GRIP's arm denoising network (GRIP Sec. 3.5, Sup. Mat. 7, Fig. S.8).
+
+Input: both arms (shoulders, elbows; 6D) at the current frame t plus 5 noisy future
+frames, optionally with extra per-sample context (e.g. hand-sensor features of frame t).
+Output: denoised arms for frames t .. t+n_next, with the same latent temporal
+consistency as CNet (``grip_bench.grip.ltc``): ``z_{t+k} = z_t + dz_k``, one decoder.
+The paper decodes the five future frames (``n_next=5``); the suite's default pipeline
+uses t and t+1 (``n_next=1``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from grip_bench.constants import (
+    ANET_NOISY_FUTURE,
+    GRIP_DROPOUT,
+    GRIP_LATENT,
+    N_ARM_JOINTS,
+    ROT6D_DIM,
+)
+from grip_bench.errors import InputError
+from grip_bench.grip.blocks import ResMLP, check_config, check_shape
+from grip_bench.grip.ltc import check_mode, decode_frames, n_frames_out, split_codes
+
+
+@dataclass
+class ANetConfig:
+    n_joints: int = N_ARM_JOINTS  # left/right shoulder, left/right elbow
+    rot_dim: int = ROT6D_DIM
+    n_future: int = ANET_NOISY_FUTURE  # noisy future frames in
+    n_next: int = 1  # frames decoded after t (paper: 5)
+    context_dim: int = 0  # optional extra features of frame t
+    # Widths are not given in the paper; arms are a 24-number signal, so ANet is kept
+    # narrower than CNet. Sup. Mat. 7: encoder and decoder have 4 residual layers each.
+    hidden: int = 1024
+    width: int = 512
+    latent: int = GRIP_LATENT
+    n_enc_blocks: int = 4
+    n_dec_blocks: int = 4
+    dropout: float = GRIP_DROPOUT
+    consistency: str = "latent"  # "latent" | "output" | "none"
+
+    def __post_init__(self):
+        check_mode(self.consistency)
+        check_config(self, may_be_zero=("context_dim",))
+        if self.n_next > self.n_future:
+            raise ValueError(f"ANetConfig.n_next={self.n_next} exceeds n_future={self.n_future}")
+
+    @property
+    def n_frames(self) -> int:
+        """Frames decoded: t .. t+n_next, or t alone without consistency."""
+        return n_frames_out(self.consistency, self.n_next)
+
+    @property
+    def pose_dim(self) -> int:
+        return self.n_joints * self.rot_dim
+
+    @property
+    def in_dim(self) -> int:
+        return (1 + self.n_future) * self.pose_dim + self.context_dim
+
+    def build(self) -> ANet:
+        return ANet(self)
+
+
+@dataclass
+class ANetOutput:
+    arms: torch.Tensor  # (B, F, J, 6) denoised arms for frames t .. t+F-1
+    z: torch.Tensor  # (B, F, L) per-frame global latents
+    dz: torch.Tensor | None  # (B, F-1, L) latent residuals (latent mode only)
+
+    @property
+    def arms_t(self) -> torch.Tensor:
+        return self.arms[:, 0]  # (B, J, 6)
+
+    @property
+    def arms_t1(self) -> torch.Tensor | None:
+        return self.arms[:, 1] if self.arms.shape[1] > 1 else None  # (B, J, 6)
+
+
+class ANet(nn.Module):
+    """Encoder ``E_A`` + shared decoder ``D_A`` with latent temporal consistency."""
+
+    def __init__(self, cfg: ANetConfig):
+        super().__init__()
+        self.cfg = cfg
+        block = dict(width=cfg.width, hidden=cfg.hidden, dropout=cfg.dropout)
+        self.encoder = ResMLP(
+            cfg.in_dim, cfg.n_frames * cfg.latent, n_blocks=cfg.n_enc_blocks, **block
+        )
+        self.decoder = ResMLP(
+            cfg.latent, cfg.pose_dim, n_blocks=cfg.n_dec_blocks, input_norm=False, **block
+        )
+
+    def pack_inputs(self, current, noisy_future, context) -> torch.Tensor:
+        """Check shapes and concatenate the encoder input ``(B, in_dim)``."""
+        c = self.cfg
+        check_shape(current, (None, c.n_joints, c.rot_dim), "ANet current")
+        b = current.shape[0]
+        check_shape(noisy_future, (b, c.n_future, c.n_joints, c.rot_dim), "ANet noisy_future")
+        parts = [current.flatten(1), noisy_future.flatten(1)]
+        if c.context_dim:
+            if context is None:
+                raise InputError(
+                    f"ANet expects context of size {c.context_dim}", where="ANet context"
+                )
+            check_shape(context, (b, c.context_dim), "ANet context")
+            parts.append(context)
+        return torch.cat(parts, dim=-1)
+
+    def forward(
+        self,
+        current: torch.Tensor,
+        noisy_future: torch.Tensor,
+        context: torch.Tensor | None = None,
+    ) -> ANetOutput:
+        """Denoise the arms.
+
+        current (B, J, 6) arms at t; noisy_future (B, n_future, J, 6) arms at t+1..t+n_future;
+        context (B, context_dim) or None. Returns arms (B, F, J, 6), F = cfg.n_frames.
+        """
+        c = self.cfg
+        codes = self.encoder(self.pack_inputs(current, noisy_future, context))  # (B, F*L)
+        lat = split_codes(codes, c.latent, c.consistency)  # z (B, F, L)
+        arms = decode_frames(self.decoder, lat.z).unflatten(-1, (c.n_joints, c.rot_dim))
+        return ANetOutput(arms=arms, z=lat.z, dz=lat.dz)
