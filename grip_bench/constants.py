@@ -47,3 +47,75 @@ ROT_EPS = 1e-6  # small-angle switch for series expansions
 
 # --- World frame --------------------------------------------------------------
 UP = (0.0, 1.0, 0.0)  # SynthGRAB / procedural body: y up, body faces +z
+
+# --- geometry ---
+# Rotation series switch: below this angle (rad) sin(t)/t and friends use a Taylor series
+# in t^2 (truncation error < 1e-16 here), keeping values and gradients smooth at 0 in
+# float32 too, where ROT_EPS = 1e-6 would leave cancellation in the autograd formula.
+ROT_SERIES_ANGLE = 1e-2
+MAX_HOLE_FRACTION = 0.15  # holes with perimeter up to this share of the bbox diagonal get fan-closed
+FLAT_TOL = 1e-6  # relative; thinnest/largest vertex spread (and volume/extent^3) below = flat
+SDF_EXACT_DEPTH = 0.02  # m; the grid holds exact node values within this distance of the surface
+SDF_COARSE_FACTOR = 4  # coarse grid (fills nodes beyond SDF_EXACT_DEPTH) = this x the spacing
+SDF_BARY_TOL = 1e-7  # barycentric coordinate below which a closest point sits on an edge/vertex
+
+# --- grip nets ---------------------------------------------------------------
+# Paper-scale sizes of GRIP's networks (DESIGN 5, "Networks"; GRIP Sec. 3.4-3.6).
+GRIP_HIDDEN = 2048  # inner width of a residual block
+GRIP_WIDTH = 1024  # width between residual blocks
+GRIP_LATENT = 256  # CNet / ANet latent code per frame
+GRIP_DROPOUT = 0.3
+GRIP_LEAKY_SLOPE = 0.2
+ROT6D_DIM = 6
+N_HAND_POSE_JOINTS = 15  # MANO finger joints (wrist excluded)
+N_ARM_JOINTS = 4  # left/right shoulder and elbow
+ANET_NOISY_FUTURE = 5  # noisy future arm frames fed to ANet (GRIP Sup. Mat. 7)
+# CNet per-frame body context: 21 SMPL-X body joints x 6D (no root) + 2 wrists x
+# (6D orientation + 3D position) + 10 shape coefficients.
+CNET_BODY_DIM = 21 * 6 + 2 * 9 + 10
+
+# --- data ---
+# Plausibility bounds that catch unit mistakes in data files (InputError, not clipping).
+MAX_ABS_TRANSL = 10.0  # m; larger translations look like millimetres
+MAX_AXIS_ANGLE = 12.6  # rad (~4 pi); larger rotation vectors look like degrees
+SUBJECT_HEIGHT_RANGE = (0.5, 2.6)  # m; outside looks like centimetres or a typo
+HAND_SCALE_RANGE = (0.3, 3.0)  # multiplier of HAND_LENGTH
+N_HAND_POSE = 45  # full MANO finger pose, 15 joints x axis-angle
+GRAB_N_COMPS = 24  # GRAB's released hand poses are 24 MANO PCA coefficients
+# TOCH protocol (GRAB-T, GRAB-R) and GRIP's ANet arm noise, per frame, i.i.d. Gaussian.
+TOCH_T_SIGMAS = (0.01, 0.02)  # m, hand translation
+TOCH_R_SIGMAS = (0.3, 0.5)  # rad, each hand-joint axis-angle component
+ANET_SHOULDER_SIGMA = 0.01  # rad
+ANET_ELBOW_SIGMA = 0.03  # rad
+
+# --- body ---
+BODY_HEIGHT = 1.7  # m, default stature of the procedural body
+ELBOW_MAX_FLEXION = 2.6  # rad (~150 deg), the anatomical flexion range the arm IK allows
+ARM_IK_TOL = 1e-6  # m; a wrist target within this of the reachable shell counts as reached
+
+# --- metrics ---
+# Intersection volume
+IV_GRID_PITCH = 0.001  # m; naive containment-grid reference used by tests and benchmarks
+# Physics stability (grip_bench.metrics.physics); the paper's protocol constants are above.
+SIM_FRICTION = 1.0  # sliding; skin on plastic / wood is about 0.6-1.0, Bullet grasp tests use ~1
+SIM_TORSIONAL_FRICTION = 0.005  # m; MuJoCo default: a finger pad a few mm wide resists twisting
+SIM_ROLLING_FRICTION = 0.0001  # m; MuJoCo default
+SIM_CONDIM = 4  # normal + 2 tangential + torsional: a two-finger pinch does not let the object spin
+SIM_SOLREF = (0.01, 1.0)  # s, damping ratio; 10 ms >= 2 SIM_DT (stable), critically damped, stiffer
+# than MuJoCo's 20 ms so a resting object sinks ~0.1 mm rather than ~0.5 mm
+SIM_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)  # impedance ramps to 0.99 within 1 mm of penetration
+SIM_IMPRATIO = 10.0  # elliptic cones: friction stiffer than normal force, less creep in a hold
+SIM_MAX_SPEED = 50.0  # m/s; 1 s of free fall reaches 9.8 m/s, anything far beyond has diverged
+SIM_MIN_PIECE_VOLUME = 1e-10  # m^3 (0.1 mm^3); flatter convex pieces are dropped (MuJoCo rejects them)
+SIM_CONVEX_TOL = 0.01  # a mesh within 1% of its hull volume is used as one convex piece
+SIM_COACD_THRESHOLD = 0.05  # CoACD concavity; 0.1 leaves a bowl's pieces 40% overfull
+SIM_COACD_MAX_HULLS = -1  # no cap: the threshold decides
+SIM_COACD_RESOLUTION = 1000  # CoACD sampling resolution (default 2000); halves run time
+SIM_COACD_MCTS_ITERATIONS = 60  # default 150
+SIM_COACD_MCTS_NODES = 10  # default 20
+
+# --- synth objects ---------------------------------------------------------------
+SYNTH_OBJ_SEGMENTS = 40  # circular segments for hand-sized parts (~0.3% cylinder volume loss)
+SYNTH_OBJ_SEGMENTS_LARGE = 48  # spheres, tori and large vessels
+SYNTH_OBJ_SEGMENTS_SMALL = 12  # stems, buttons, handle tubes, rim rounds
+SYNTH_LARGE_EXTENT = (0.30, 0.50)  # m; largest extent of two-handed SynthGRAB objects
