@@ -58,6 +58,7 @@ FLAT_TOL = 1e-6  # relative; thinnest/largest vertex spread (and volume/extent^3
 SDF_EXACT_DEPTH = 0.02  # m; the grid holds exact node values within this distance of the surface
 SDF_COARSE_FACTOR = 4  # coarse grid (fills nodes beyond SDF_EXACT_DEPTH) = this x the spacing
 SDF_BARY_TOL = 1e-7  # barycentric coordinate below which a closest point sits on an edge/vertex
+SDF_KINK_TOL = 0.25e-3  # m; cells whose estimated trilinear error (spacing * gradient spread / 4) exceeds this use the exact path
 
 # --- grip nets ---------------------------------------------------------------
 # Paper-scale sizes of GRIP's networks (DESIGN 5, "Networks"; GRIP Sec. 3.4-3.6).
@@ -119,3 +120,38 @@ SYNTH_OBJ_SEGMENTS = 40  # circular segments for hand-sized parts (~0.3% cylinde
 SYNTH_OBJ_SEGMENTS_LARGE = 48  # spheres, tori and large vessels
 SYNTH_OBJ_SEGMENTS_SMALL = 12  # stems, buttons, handle tubes, rim rounds
 SYNTH_LARGE_EXTENT = (0.30, 0.50)  # m; largest extent of two-handed SynthGRAB objects
+
+# --- bench ---
+# Stratified bootstrap over sequences (grip_bench.bench.stats), rliable-style percentile CI.
+BOOTSTRAP_N = 2000  # resamples; Monte-Carlo error of a 95% bound is ~1% of the CI width
+BOOTSTRAP_ALPHA = 0.05  # 95% intervals
+BOOTSTRAP_SEED = 0
+BOOTSTRAP_CHUNK = 4_000_000  # indices drawn per vectorised chunk (~32 MB of int64); fixed so
+# results depend on the seed only, never on memory
+CACHE_SCHEMA_VERSION = 1  # bump when the cache layout or a unit's content format changes
+REPORT_DECIMALS = 2  # digits after the point in rendered tables (GRIP's tables use 2)
+
+# --- baselines ---
+# GrabNet (GRAB Sec. 4, Sup. Mat. S.9): BPS object code, CoarseNet cVAE, RefineNet.
+BPS_N_POINTS = 4096  # basis points
+BPS_RADIUS = 0.15  # m, ball around the object centre holding the basis points
+BPS_SEED = 0  # the one fixed basis shared by training and inference
+GRABNET_WIDTH = 512
+GRABNET_LATENT = 16
+GRABNET_REFINE_ITERS = 3
+# RefineNet training noise on GT grasps, as variances (GRAB S.9.2): finger joints (rad^2),
+# root orientation (rad^2), translation (m^2).
+GRABNET_NOISE_VAR = (0.2, 0.004, 0.05)
+# TOCH-style refiner: object-centric correspondence field over temporal windows.
+TOCH_MAX_DIST = 0.1  # m, rays from object points farther than this from the hand miss
+TOCH_N_POINTS = 2000  # object surface samples per frame
+TOCH_WINDOW = 30  # frames per temporal window
+# ManipNet-style single-hand (right) autoregressive finger model.
+MANIPNET_PAST = 10  # wrist frames before the current one
+MANIPNET_FUTURE = 10  # wrist frames after the current one
+MANIPNET_VOXEL_RES = 8  # cells per side of the wrist-frame occupancy grid
+MANIPNET_VOXEL_CELL = 0.02  # m, cell size (an 8 x 2 cm = 16 cm cube)
+# Grid centre in the right wrist frame: half a hand towards the fingers (-x) and a little
+# to the palm side (-y), so the cube holds what the fingers can reach, not the forearm.
+MANIPNET_VOXEL_CENTER = (-0.07, -0.03, 0.0)
+MANIPNET_DIST_CLIP = 0.1  # m; signed distances are clipped to +-this before the network
