@@ -12,10 +12,15 @@ Optional extras for licensed model files:
   wrapped array (chumpy itself is never imported);
 - ``allow_sparse=True`` admits scipy's csc/csr/coo matrices (the MANO joint
   regressor), which are rebuilt from their arrays.
+
+Python 2 names (``copy_reg``, ``__builtin__``) are mapped to Python 3 before the
+allow-list check, and ``_codecs.encode`` (how Python 3 protocol-2 pickles store bytes)
+is replaced by a latin1-only encoder.
 """
 
 from __future__ import annotations
 
+import _compat_pickle
 import io
 import os
 import pickle
@@ -24,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError, UnsafeFileError
+from .errors import GripBenchError, InputError, UnsafeFileError
 
 _NUMPY_CORE = ("numpy.core.multiarray", "numpy._core.multiarray")
 _ALLOWED: set[tuple[str, str]] = {
@@ -44,8 +49,14 @@ _ALLOWED: set[tuple[str, str]] = {
     ("builtins", "complex"),
     ("builtins", "bool"),
     ("collections", "OrderedDict"),
+    # protocol-5 pickles of contiguous arrays (np.frombuffer + reshape)
+    ("numpy.core.numeric", "_frombuffer"),
+    ("numpy._core.numeric", "_frombuffer"),
+    ("builtins", "bytearray"),
 }
-# numpy dtype classes pickled by numpy>=1.25 (numpy.dtypes.Float64DType, ...)
+# numpy dtype classes pickled by numpy>=1.25 (numpy.dtypes.Float64DType, ...). Only the
+# DType classes themselves: the module also holds helpers and dunders (``__loader__``)
+# that a dotted protocol-4 name could reach.
 _DTYPE_MODULES = ("numpy.dtypes",)
 
 _SPARSE = {
@@ -62,6 +73,8 @@ class ChumpyArray:
     """Stand-in for ``chumpy.ch.Ch``: keeps the wrapped value ``x`` only."""
 
     def __setstate__(self, state: Any) -> None:
+        if isinstance(state, tuple) and state and isinstance(state[0], dict):
+            state = state[0]  # (dict state, slot state)
         self.x = state.get("x") if isinstance(state, dict) else None
 
     def __array__(self, dtype=None, copy=None):
@@ -106,8 +119,11 @@ class RestrictedUnpickler(pickle.Unpickler):
         self.source = source
 
     def find_class(self, module: str, name: str):
-        if (module, name) in _ALLOWED or module in _DTYPE_MODULES:
+        module, name = _py3_name(module, name)
+        if (module, name) in _ALLOWED or (module in _DTYPE_MODULES and _is_dtype_name(name)):
             return super().find_class(module, name)
+        if (module, name) == ("_codecs", "encode"):
+            return _latin1_bytes
         if self.allow_chumpy and module.startswith("chumpy"):
             return ChumpyArray
         if self.allow_sparse and (module, name) in _SPARSE:
@@ -120,6 +136,26 @@ class RestrictedUnpickler(pickle.Unpickler):
             f"refused to unpickle '{module}.{name}': only numpy arrays and plain data are accepted",
             self.source,
         )
+
+
+def _py3_name(module: str, name: str) -> tuple[str, str]:
+    """Python 2 names (``copy_reg``, ``__builtin__``; the official model files are
+    Python 2 pickles) mapped to Python 3, as the default ``find_class`` would."""
+    if (module, name) in _compat_pickle.NAME_MAPPING:
+        return _compat_pickle.NAME_MAPPING[(module, name)]
+    return _compat_pickle.IMPORT_MAPPING.get(module, module), name
+
+
+def _latin1_bytes(text: str, encoding: str = "latin1") -> bytes:
+    """``_codecs.encode`` as Python 3 protocol-2 pickles use it for ``bytes`` (latin1 only)."""
+    if not isinstance(text, str) or encoding.replace("-", "").lower() != "latin1":
+        raise pickle.UnpicklingError(f"refused _codecs.encode with encoding {encoding!r}")
+    return text.encode("latin1")
+
+
+def _is_dtype_name(name: str) -> bool:
+    """A plain ``numpy.dtypes`` DType class name (no dots, no dunders)."""
+    return name.isidentifier() and name.endswith("DType") and not name.startswith("_")
 
 
 def _make_sparse_factory(kind: str):
@@ -144,17 +180,21 @@ def load_pickle(path: str | os.PathLike, *, allow_chumpy: bool = False,
         with open(path, "rb") as f:
             obj = RestrictedUnpickler(f, allow_chumpy=allow_chumpy, allow_sparse=allow_sparse,
                                       source=str(path)).load()
-    except UnsafeFileError:
+        return _to_plain(obj)
+    except GripBenchError:
         raise
-    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError) as e:
+    except OSError as e:
+        raise InputError(f"cannot read ({e.strerror or e})", path) from e
+    except Exception as e:  # noqa: BLE001 - any parse failure of untrusted bytes is bad input
         raise InputError(f"not a readable pickle ({type(e).__name__}: {e})", path) from e
-    return _to_plain(obj)
 
 
 def _to_plain(obj: Any) -> Any:
     """Replace chumpy and sparse shells by ndarrays, recursively through containers."""
     if isinstance(obj, ChumpyArray):
-        return np.asarray(obj.x)
+        if obj.x is None:
+            raise ValueError("a chumpy object without a stored value 'x'")
+        return np.asarray(_to_plain(obj.x))
     if isinstance(obj, _SparseShell):
         return obj.toarray()
     if isinstance(obj, dict):
@@ -197,9 +237,9 @@ def load_npz(path: str | os.PathLike) -> dict[str, Any]:
             key = member[:-4] if member.endswith(".npy") else member
             try:
                 arr = _read_npy(zf.read(member), f"{path}: {key}")
-            except UnsafeFileError:
+            except GripBenchError:
                 raise
-            except (zipfile.BadZipFile, ValueError, EOFError, OSError, pickle.UnpicklingError) as e:
+            except Exception as e:  # noqa: BLE001 - any parse failure of untrusted bytes
                 raise InputError(f"corrupt array ({type(e).__name__}: {e})", f"{path}: {key}") from e
             if isinstance(arr, np.ndarray) and arr.dtype.hasobject and arr.shape == ():
                 arr = arr.item()
