@@ -1,0 +1,61 @@
+"""Evaluation metrics: pure functions on batched arrays and meshes (DESIGN 5).
+
+Units in, units out: metres, m^3, fractions, m/s^2; ``registry.METRICS`` holds the report
+unit and scale of each metric id. Heavy dependencies (mujoco, coacd, manifold3d, libigl)
+are imported inside the functions that need them.
+"""
+
+from .contact import (
+    contact_consistency,
+    contact_drift,
+    contact_frequency,
+    contact_ratio,
+    grasp_mask,
+    in_contact,
+)
+from .intersection import (
+    FailureCounter,
+    cap_boundary_loops,
+    intersection_volume,
+    intersection_volume_batch,
+    is_closed_manifold,
+)
+from .jitter import jitter, jitter_error
+from .penetration import exact_signed_distance, penetration_depth, penetration_depth_from_sdf
+from .physics import (
+    StabilityResult,
+    convex_decomposition,
+    hand_convex_pieces,
+    stability,
+    stability_sequence,
+)
+from .pose import mpjpe, mpvpe
+from .registry import METRICS, MetricSpec
+
+__all__ = [
+    "METRICS",
+    "FailureCounter",
+    "MetricSpec",
+    "StabilityResult",
+    "cap_boundary_loops",
+    "contact_consistency",
+    "contact_drift",
+    "contact_frequency",
+    "contact_ratio",
+    "convex_decomposition",
+    "exact_signed_distance",
+    "grasp_mask",
+    "hand_convex_pieces",
+    "in_contact",
+    "intersection_volume",
+    "intersection_volume_batch",
+    "is_closed_manifold",
+    "jitter",
+    "jitter_error",
+    "mpjpe",
+    "mpvpe",
+    "penetration_depth",
+    "penetration_depth_from_sdf",
+    "stability",
+    "stability_sequence",
+]

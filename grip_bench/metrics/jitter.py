@@ -1,0 +1,31 @@
+"""Jitter: mean acceleration magnitude of hand vertices by second finite differences."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import constants as C
+
+
+def acceleration(vertices: np.ndarray, fps: float = C.FPS) -> np.ndarray:
+    """Central second differences of positions.
+
+    vertices: (T, V, 3) metres -> (T-2, V, 3) m/s^2.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    return (v[2:] - 2.0 * v[1:-1] + v[:-2]) * fps**2
+
+
+def jitter(vertices: np.ndarray, fps: float = C.FPS) -> float:
+    """Mean acceleration magnitude over frames and vertices of one sequence.
+
+    vertices: (T, V, 3) metres -> m/s^2; NaN when T < 3 (no second difference exists).
+    """
+    if np.shape(vertices)[0] < 3:
+        return float("nan")
+    return float(np.linalg.norm(acceleration(vertices, fps), axis=-1).mean())
+
+
+def jitter_error(pred_vertices: np.ndarray, gt_vertices: np.ndarray, fps: float = C.FPS) -> float:
+    """Absolute difference between the prediction's jitter and the ground truth's, m/s^2."""
+    return abs(jitter(pred_vertices, fps) - jitter(gt_vertices, fps))

@@ -1,0 +1,271 @@
+"""Physics stability in MuJoCo: hand fixed, object free under gravity (DESIGN 5, GRIP supp. 11).
+
+MuJoCo collides every mesh geom as its convex hull, so both bodies enter as convex pieces:
+the hand as one hull per bone (posed rigidly from the current frame's vertices, with a
+one-ring overlap so no gaps open between bones) and the object as a CoACD convex
+decomposition computed once per mesh and cached. A concave object is never one hull: a ball
+resting in a bowl would start deep inside the bowl's hull and be thrown out.
+
+``mujoco`` and ``coacd`` are imported inside the functions to keep ``grip_bench.metrics`` light.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+if TYPE_CHECKING:  # trimesh costs 0.5 s to import; `grip-bench ls` should not pay it
+    import trimesh
+
+from .. import constants as C
+
+
+@dataclass(frozen=True)
+class StabilityResult:
+    """Outcome of one simulation: ``displacement`` (m) of the object's centre of mass,
+    ``stable`` (displacement < constants.SIM_STABLE_DISP), ``diverged`` (NaN or runaway
+    velocity; displacement is NaN and stable False then)."""
+
+    displacement: float
+    stable: bool
+    diverged: bool
+
+
+# ---------------------------------------------------------------- convex pieces
+_PIECE_CACHE: dict[str, list[np.ndarray]] = {}
+
+
+def _mesh_key(mesh: trimesh.Trimesh, threshold: float) -> str:
+    h = hashlib.sha1(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
+    h.update(repr(threshold).encode())
+    return h.hexdigest()
+
+
+def _hull_volume(points: np.ndarray) -> float:
+    """Convex hull volume, 0 for degenerate (flat, collinear, < 4) point sets."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if len(points) < 4:
+        return 0.0
+    try:
+        return float(ConvexHull(points).volume)
+    except (QhullError, ValueError):
+        return 0.0
+
+
+def _usable(points: np.ndarray) -> bool:
+    # MuJoCo refuses flat hulls; a piece thinner than this holds nothing anyway.
+    return _hull_volume(points) > C.SIM_MIN_PIECE_VOLUME
+
+
+def convex_decomposition(
+    mesh: trimesh.Trimesh, threshold: float = C.SIM_COACD_THRESHOLD
+) -> list[np.ndarray]:
+    """Convex pieces of a closed mesh as vertex arrays [(n_i, 3)], cached by mesh content.
+
+    A mesh within 1% of its hull's volume is its own single piece (no CoACD run). CoACD runs
+    with reduced search settings (see constants.SIM_COACD_*): about 1 s for a torus, 3-4 s for
+    a thin bowl, once per object.
+    """
+    key = _mesh_key(mesh, threshold)
+    if key not in _PIECE_CACHE:
+        v = np.asarray(mesh.vertices, dtype=np.float64)
+        if abs(mesh.volume) >= (1.0 - C.SIM_CONVEX_TOL) * _hull_volume(v):
+            pieces = [v]
+        else:
+            pieces = _run_coacd(v, np.asarray(mesh.faces), threshold)
+        _PIECE_CACHE[key] = [p for p in pieces if _usable(p)] or [v]
+    return _PIECE_CACHE[key]
+
+
+def _run_coacd(v: np.ndarray, f: np.ndarray, threshold: float) -> list[np.ndarray]:
+    import coacd
+
+    coacd.set_log_level("error")
+    parts = coacd.run_coacd(
+        coacd.Mesh(v, f),
+        threshold=threshold,
+        max_convex_hull=C.SIM_COACD_MAX_HULLS,
+        resolution=C.SIM_COACD_RESOLUTION,
+        mcts_iterations=C.SIM_COACD_MCTS_ITERATIONS,
+        mcts_nodes=C.SIM_COACD_MCTS_NODES,
+        seed=0,
+    )
+    return [np.asarray(pv, dtype=np.float64) for pv, _ in parts]
+
+
+def hand_convex_pieces(mesh: trimesh.Trimesh) -> list[np.ndarray]:
+    """Convex pieces of a posed hand: one per bone when ``metadata["bone_ids"]`` (V,) exists.
+
+    Each bone's piece is the hull of its vertices plus their one-ring neighbours, so
+    neighbouring pieces overlap at the joints instead of leaving slits. Without bone ids
+    (another hand model, a plain mesh) the hand goes through ``convex_decomposition``.
+    """
+    bone = mesh.metadata.get("bone_ids") if mesh.metadata else None
+    if bone is None:
+        return convex_decomposition(mesh)
+    bone, faces = np.asarray(bone), np.asarray(mesh.faces)
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    pieces = []
+    for b in np.unique(bone):
+        ring = faces[(bone[faces] == b).any(axis=1)]
+        pts = v[np.unique(ring)]
+        if _usable(pts):
+            pieces.append(pts)
+    return pieces
+
+
+# ---------------------------------------------------------------- model
+def _contact_params(geom) -> None:
+    """Contact settings shared by hand and object geoms (the why lives in constants)."""
+    geom.friction = [C.SIM_FRICTION, C.SIM_TORSIONAL_FRICTION, C.SIM_ROLLING_FRICTION]
+    geom.condim = C.SIM_CONDIM
+    geom.solref = list(C.SIM_SOLREF)
+    geom.solimp = list(C.SIM_SOLIMP)
+    geom.margin = 0.0  # a positive margin would let the hand hold objects it does not touch
+    geom.gap = 0.0
+
+
+def _add_pieces(spec, body, pieces: list[np.ndarray], prefix: str) -> None:
+    import mujoco
+
+    for i, pts in enumerate(pieces):
+        mesh = spec.add_mesh()
+        mesh.name = f"{prefix}{i}"
+        mesh.uservert = np.asarray(pts, dtype=np.float64).ravel().tolist()  # hull computed by MuJoCo
+        geom = body.add_geom()
+        geom.type = mujoco.mjtGeom.mjGEOM_MESH
+        geom.meshname = mesh.name
+        _contact_params(geom)
+
+
+def _object_inertia(obj: trimesh.Trimesh, density: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, centre of mass (3,) and full inertia [xx, yy, zz, xy, xz, yz] of the true shape.
+
+    Taken from the closed mesh, not from the pieces: CoACD hulls overlap and overfill.
+    """
+    import trimesh
+
+    props = trimesh.triangles.mass_properties(obj.triangles, density=density)
+    inertia = np.asarray(props.inertia)  # about the centre of mass
+    full = np.array([inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]])
+    return float(props.mass), np.asarray(props.center_mass), full
+
+
+def build_model(
+    hand_pieces: list[np.ndarray],
+    obj: trimesh.Trimesh,
+    obj_pieces: list[np.ndarray],
+    obj_pose: tuple[np.ndarray, np.ndarray] | None = None,
+    up: tuple[float, float, float] = C.UP,
+    density: float = C.DEFAULT_DENSITY,
+):
+    """Compile the scene: hand pieces static in the world, the object one free body.
+
+    hand_pieces: world-frame vertex arrays; obj, obj_pieces: the object's own frame;
+    obj_pose: (R (3, 3), t (3,)) with world = R @ local + t. Returns ``mujoco.MjModel``.
+    """
+    import mujoco
+
+    spec = mujoco.MjSpec()
+    spec.option.timestep = C.SIM_DT
+    spec.option.gravity = (-C.GRAVITY * np.asarray(up, dtype=np.float64)).tolist()
+    # Semi-implicit Euler: free fall after n steps is exactly g dt^2 n (n + 1) / 2.
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC  # no pyramid bias on pinch grasps
+    spec.option.impratio = C.SIM_IMPRATIO  # stiffer friction than normal: less creep in a hold
+    _add_pieces(spec, spec.worldbody, hand_pieces, "hand")  # world geoms: fixed, never collide with each other
+    body = spec.worldbody.add_body()
+    body.name = "object"
+    if obj_pose is not None:
+        rot, trans = obj_pose
+        body.pos = np.asarray(trans, dtype=np.float64).tolist()
+        body.quat = _matrix_to_wxyz(np.asarray(rot, dtype=np.float64)).tolist()
+    body.add_freejoint()
+    mass, com, full = _object_inertia(obj, density)
+    body.explicitinertial = True
+    body.mass, body.ipos, body.fullinertia = mass, com.tolist(), full.tolist()
+    _add_pieces(spec, body, obj_pieces, "obj")
+    return spec.compile()
+
+
+def _matrix_to_wxyz(rot: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(rot).as_quat()
+    return np.array([w, x, y, z])
+
+
+# ---------------------------------------------------------------- simulation
+def simulate(model, n_steps: int) -> tuple[float, bool]:
+    """Step from rest; return (centre-of-mass displacement m, diverged)."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    start = data.xipos[1].copy()
+    for _ in range(n_steps):
+        mujoco.mj_step(model, data)
+        if not np.isfinite(data.qpos).all() or np.abs(data.qvel[:3]).max() > C.SIM_MAX_SPEED:
+            return float("nan"), True
+    mujoco.mj_kinematics(model, data)  # mj_step leaves xipos at the pre-integration positions
+    if data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0:
+        return float("nan"), True  # MuJoCo reset the state after a NaN acceleration
+    return float(np.linalg.norm(data.xipos[1] - start)), False
+
+
+def protocol_steps(protocol: Literal["paper", "hold"]) -> int:
+    """Number of steps of constants.SIM_DT for a protocol name."""
+    from ..errors import InputError
+
+    if protocol == "paper":
+        return C.SIM_PAPER_STEPS
+    if protocol == "hold":
+        return int(round(C.SIM_HOLD_SECONDS / C.SIM_DT))
+    raise InputError(f"unknown protocol '{protocol}' (known: paper, hold)", "protocol")
+
+
+def stability(
+    hand_meshes: list[trimesh.Trimesh],
+    obj: trimesh.Trimesh,
+    protocol: Literal["paper", "hold"] = "paper",
+    obj_pose: tuple[np.ndarray, np.ndarray] | None = None,
+    up: tuple[float, float, float] = C.UP,
+    density: float = C.DEFAULT_DENSITY,
+    obj_pieces: list[np.ndarray] | None = None,
+) -> StabilityResult:
+    """Simulate the object under gravity against fixed hands and measure how far it moves.
+
+    hand_meshes: posed hands in the world frame (one or two); obj: the object in its own frame,
+    placed by obj_pose = (R, t) (None: identity); obj_pieces: precomputed convex pieces (the
+    cached CoACD decomposition of ``obj`` by default). Never raises on a diverging simulation.
+    """
+    n_steps = protocol_steps(protocol)
+    hand_pieces = [p for h in hand_meshes for p in hand_convex_pieces(h)]
+    pieces = convex_decomposition(obj) if obj_pieces is None else obj_pieces
+    model = build_model(hand_pieces, obj, pieces, obj_pose, up, density)
+    disp, diverged = simulate(model, n_steps)
+    return StabilityResult(disp, bool(not diverged and disp < C.SIM_STABLE_DISP), diverged)
+
+
+def stability_sequence(
+    hand_meshes: list[list[trimesh.Trimesh]],
+    obj: trimesh.Trimesh,
+    obj_poses: list[tuple[np.ndarray, np.ndarray]] | None = None,
+    protocol: Literal["paper", "hold"] = "paper",
+    up: tuple[float, float, float] = C.UP,
+    density: float = C.DEFAULT_DENSITY,
+) -> list[StabilityResult]:
+    """``stability`` for each frame of a sequence; the object's pieces are computed once.
+
+    hand_meshes: per frame, the list of posed hands; obj_poses: per frame (R, t) or None.
+    """
+    pieces = convex_decomposition(obj)
+    return [
+        stability(hands, obj, protocol, None if obj_poses is None else obj_poses[t], up, density, pieces)
+        for t, hands in enumerate(hand_meshes)
+    ]
