@@ -126,8 +126,8 @@ SYNTH_LARGE_EXTENT = (0.30, 0.50)  # m; largest extent of two-handed SynthGRAB o
 BOOTSTRAP_N = 2000  # resamples; Monte-Carlo error of a 95% bound is ~1% of the CI width
 BOOTSTRAP_ALPHA = 0.05  # 95% intervals
 BOOTSTRAP_SEED = 0
-BOOTSTRAP_CHUNK = 4_000_000  # indices drawn per vectorised chunk (~32 MB of int64); fixed so
-# results depend on the seed only, never on memory
+BOOTSTRAP_CHUNK = 4_000_000  # indices drawn per vectorised chunk (~32 MB of int64); bounds
+# memory only: the draws are the same for any chunk size
 CACHE_SCHEMA_VERSION = 1  # bump when the cache layout or a unit's content format changes
 REPORT_DECIMALS = 2  # digits after the point in rendered tables (GRIP's tables use 2)
 

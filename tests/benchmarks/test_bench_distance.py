@@ -1,0 +1,99 @@
+"""Distance-field speed: the sensor workload (2 x 1024 ambient + 2 x 99 proximity points per
+frame, 1000 frames) on the grid and on the exact path, and the grid build time.
+
+Run: pytest tests/benchmarks/test_bench_distance.py --benchmark-enable --benchmark-only
+Per-frame figures are the benchmark time divided by the frame count (see extra_info).
+"""
+
+import manifold3d
+import numpy as np
+import pytest
+import trimesh
+
+from grip_bench import constants
+from grip_bench.geometry.distance import DistanceField
+from grip_bench.geometry.meshes import from_manifold
+
+N_FRAMES = 1000
+PER_FRAME = 2 * constants.AMBIENT_N_POINTS + 2 * constants.PROXIMITY_N_VERTS
+
+
+def _mug():
+    cyl = manifold3d.Manifold.cylinder
+    body = cyl(0.10, 0.04, 0.04, 64) - cyl(0.10, 0.036, 0.036, 64).translate((0, 0, 0.004))
+    ring = cyl(0.008, 0.03, 0.03, 32) - cyl(0.02, 0.022, 0.022, 32).translate((0, 0, -0.006))
+    return from_manifold(body + ring.rotate((90, 0, 0)).translate((0.05, 0.004, 0.05)))
+
+
+@pytest.fixture(scope="module")
+def mug():
+    return _mug()
+
+
+@pytest.fixture(scope="module")
+def field(mug):
+    return DistanceField(mug)
+
+
+@pytest.fixture(scope="module")
+def frames(mug):
+    """(N_FRAMES, PER_FRAME, 3): ambient points anywhere in the grid box, proximity points
+    within 2 cm of the surface (hands grasping the object)."""
+    rng = np.random.default_rng(0)
+    lo, hi = mug.bounds
+    pad = constants.SDF_GRID_PADDING
+    n_amb = 2 * constants.AMBIENT_N_POINTS
+    amb = rng.uniform(lo - pad, hi + pad, (N_FRAMES, n_amb, 3))
+    n_prox = N_FRAMES * 2 * constants.PROXIMITY_N_VERTS
+    s, _ = trimesh.sample.sample_surface(mug, n_prox, seed=rng)
+    prox = (s + rng.normal(scale=0.01, size=s.shape)).reshape(N_FRAMES, -1, 3)
+    return np.concatenate([amb, prox], 1)
+
+
+def _info(benchmark, field, pts, frames_run):
+    exact = field._grid(pts.reshape(-1, 3), field._vol)[1]
+    benchmark.extra_info.update(
+        frames=frames_run, points_per_frame=PER_FRAME, exact_fallback_share=float(exact.mean())
+    )
+
+
+def test_grid_batched(benchmark, field, frames):
+    pts = frames.reshape(-1, 3)
+    benchmark.pedantic(field.signed_distance, args=(pts,), rounds=3, iterations=1)
+    _info(benchmark, field, frames, N_FRAMES)
+
+
+def test_grid_per_frame(benchmark, field, frames):
+    def run():
+        for f in frames:
+            field.signed_distance(f)
+
+    benchmark.pedantic(run, rounds=3, iterations=1)
+    _info(benchmark, field, frames, N_FRAMES)
+
+
+def test_exact_per_frame(benchmark, field, frames):
+    sub = frames[:20]
+
+    def run():
+        for f in sub:
+            field.exact_signed_distance(f)
+
+    benchmark.pedantic(run, rounds=3, iterations=1)
+    _info(benchmark, field, sub, len(sub))
+
+
+def test_grid_build(benchmark, mug):
+    df = benchmark.pedantic(DistanceField, args=(mug,), rounds=3, iterations=1)
+    benchmark.extra_info.update(grid_shape=df.shape, unreliable_cells=df.unreliable_fraction)
+
+
+def test_grid_error_within_2cm(benchmark, field, frames):
+    """Not a speed figure: records the max grid-vs-exact error within 2 cm (extra_info)."""
+    pts = frames[:100].reshape(-1, 3)
+    grid = benchmark.pedantic(field.signed_distance, args=(pts,), rounds=1, iterations=1)
+    exact = field.exact_signed_distance(pts)
+    near = np.abs(exact) < 0.02
+    benchmark.extra_info.update(
+        max_error_mm_within_2cm=float(np.abs(grid - exact)[near].max() * 1e3)
+    )
