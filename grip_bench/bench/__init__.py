@@ -1,0 +1,1 @@
+"""Benchmark backbone: results schema, statistics, tables, leaderboard, manifest, cache."""

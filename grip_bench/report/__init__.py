@@ -1,0 +1,1 @@
+"""Report rendering: tables (md/csv/tex/html), leaderboard pages and figures."""

@@ -1,0 +1,171 @@
+"""Leaderboard (DESIGN 4.3): one line per (method, metric, hand) with a 95% bootstrap interval.
+
+Values are averaged per sequence first (repeats and, for ``hand = "mean"`` tables, hands),
+then over sequences; the interval resamples sequences within each object (stratified,
+seeded). ``n_sequences`` counts the sequences with a finite value; ``n_nan`` (an extra
+column of the returned frame, not of ``leaderboard.csv``) counts those that gave NaN.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..constants import BOOTSTRAP_N, BOOTSTRAP_SEED
+from ..errors import InputError
+from .cache import atomic_write_text
+from .results import format_float
+from .stats import CI, sequence_ci
+from .tables import (
+    HAND_LABELS,
+    Cell,
+    Column,
+    Row,
+    TableData,
+    default_metric_registry,
+    mark_best,
+)
+
+LEADERBOARD_COLUMNS = ("method", "metric", "hand", "value", "ci_low", "ci_high", "unit",
+                       "higher_is_better", "n_sequences")
+# Rows that bound the scale rather than compete: never marked best in rendered leaderboards.
+REFERENCE_METHODS = ("gt", "perturbed-input")
+_HAND_ORDER = {"right": 0, "left": 1, "both": 2}
+
+
+def _unit(rows: pd.DataFrame, metric: str, registry) -> str:
+    """The one report unit of a metric; a mismatch with the registry is a unit bug."""
+    units = sorted(set(rows["unit"]))
+    if len(units) != 1:
+        raise InputError(f"metric '{metric}' has several units in the results: "
+                         f"{', '.join(units)}")
+    if registry is not None and metric in registry and registry.get(metric).unit != units[0]:
+        raise InputError(f"metric '{metric}' is reported in '{units[0]}' but registered in "
+                         f"'{registry.get(metric).unit}'")
+    return units[0]
+
+
+def _direction(metric: str, registry) -> bool | None:
+    return registry.get(metric).higher_is_better if registry is not None and metric in registry \
+        else None
+
+
+def _rank_key(lb: pd.DataFrame) -> pd.Series:
+    """Best first within a (metric, hand): negate when higher is better; NaN last."""
+    sign = lb["higher_is_better"].map(lambda h: -1.0 if h is True else 1.0)
+    return (lb["value"] * sign).fillna(np.inf)
+
+
+def leaderboard(results_df: pd.DataFrame, metrics_registry=None, seed: int = BOOTSTRAP_SEED, *,
+                n_boot: int = BOOTSTRAP_N, perturbation: str | None = "none") -> pd.DataFrame:
+    """Leaderboard frame: :data:`LEADERBOARD_COLUMNS` plus ``n_nan``.
+
+    ``results_df`` is a validated results frame (one dataset: the leaderboard does not pool
+    datasets for you, pass one at a time). ``perturbation`` selects the clean runs by
+    default; ``None`` keeps all rows. Rows are ordered by metric, hand, then best first.
+    """
+    registry = metrics_registry if metrics_registry is not None else default_metric_registry()
+    df = results_df if perturbation is None else \
+        results_df[results_df["perturbation"] == perturbation]
+    records = []
+    for (method, metric, hand), rows in df.groupby(["method", "metric", "hand"], sort=True):
+        ci = sequence_ci(rows, n_boot=n_boot, seed=seed)
+        records.append({"method": method, "metric": metric, "hand": hand, "value": ci.mean,
+                        "ci_low": ci.lo, "ci_high": ci.hi, "unit": _unit(rows, metric, registry),
+                        "higher_is_better": _direction(metric, registry),
+                        "n_sequences": ci.n, "n_nan": ci.n_nan})
+    lb = pd.DataFrame.from_records(records, columns=[*LEADERBOARD_COLUMNS, "n_nan"])
+    if lb.empty:
+        return lb
+    lb["_hand"] = lb["hand"].map(lambda h: _HAND_ORDER.get(h, 9))
+    lb["_rank"] = _rank_key(lb)
+    lb = lb.sort_values(["metric", "_hand", "hand", "_rank", "method"], kind="mergesort")
+    return lb.drop(columns=["_hand", "_rank"]).reset_index(drop=True)
+
+
+# --- writers --------------------------------------------------------------------------------
+def leaderboard_csv_text(lb: pd.DataFrame) -> str:
+    """``leaderboard.csv`` text: DESIGN 4.3 columns, round-trip floats, true/false/empty."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(LEADERBOARD_COLUMNS)
+    for r in lb.itertuples(index=False):
+        hib = "" if r.higher_is_better is None or pd.isna(r.higher_is_better) else \
+            ("true" if r.higher_is_better else "false")
+        w.writerow([r.method, r.metric, r.hand, format_float(r.value), format_float(r.ci_low),
+                    format_float(r.ci_high), r.unit, hib, int(r.n_sequences)])
+    return buf.getvalue()
+
+
+def write_leaderboard_csv(lb: pd.DataFrame, path: str | os.PathLike) -> Path:
+    return atomic_write_text(path, leaderboard_csv_text(lb))
+
+
+def _metric_order(lb: pd.DataFrame, registry) -> list[str]:
+    """Registry order first (the order of DESIGN 5), unknown metrics alphabetically after."""
+    known = registry.names() if registry is not None else []
+    present = set(lb["metric"])
+    return [m for m in known if m in present] + sorted(present - set(known))
+
+
+def leaderboard_table(lb: pd.DataFrame, metrics_registry=None, title: str = "Leaderboard",
+                      reference_methods: Sequence[str] = REFERENCE_METHODS) -> TableData:
+    """The leaderboard as a wide table (methods x metric/hand) for the shared renderers."""
+    registry = metrics_registry if metrics_registry is not None else default_metric_registry()
+    keys = [(m, h) for m in _metric_order(lb, registry)
+            for h in sorted(set(lb.loc[lb["metric"] == m, "hand"]),
+                            key=lambda h: (_HAND_ORDER.get(h, 9), h))]
+    by_key = {(r.method, r.metric, r.hand): r for r in lb.itertuples(index=False)}
+    columns = []
+    for m, h in keys:
+        r = lb[(lb["metric"] == m) & (lb["hand"] == h)].iloc[0]
+        name = registry.get(m).name if registry is not None and m in registry else m
+        hib = None if pd.isna(r["higher_is_better"]) else bool(r["higher_is_better"])
+        columns.append(Column(group=name, label=HAND_LABELS.get(h, h), unit=r["unit"],
+                              higher_is_better=hib))
+    rows = []
+    for method in sorted(set(lb["method"])):
+        cells = tuple(_lb_cell(by_key.get((method, m, h)), col)
+                      for (m, h), col in zip(keys, columns, strict=True))
+        rows.append(Row(label=method, cells=cells, reference=method in reference_methods))
+    notes = ("Mean over sequences with a 95% bootstrap interval (resampling sequences within "
+             "each object, seeded).",
+             f"Reference rows ({', '.join(reference_methods)}) are never marked best.")
+    return TableData(id="leaderboard", title=title, version=1,
+                     description="every method, metric and hand on the clean test runs",
+                     row_header="Method", columns=tuple(columns),
+                     rows=tuple(mark_best(rows)), notes=notes)
+
+
+def _lb_cell(r, col: Column) -> Cell:
+    if r is None:
+        return Cell(ci=None, higher_is_better=col.higher_is_better)
+    ci = CI(r.value, r.ci_low, r.ci_high, int(r.n_sequences), int(r.n_nan))
+    return Cell(ci=ci, metric=r.metric, unit=r.unit, higher_is_better=col.higher_is_better,
+                filters={"method": r.method, "metric": r.metric, "hand": r.hand})
+
+
+def write_leaderboard_md(lb: pd.DataFrame, path: str | os.PathLike, metrics_registry=None,
+                         title: str = "Leaderboard") -> Path:
+    from ..report.render import to_markdown
+
+    return atomic_write_text(path, to_markdown(leaderboard_table(lb, metrics_registry, title),
+                                               heading_level=2))
+
+
+def write_leaderboard_html(lb: pd.DataFrame, path: str | os.PathLike,
+                           figures: Sequence[str | os.PathLike] = (), metrics_registry=None,
+                           title: str = "grip-bench leaderboard",
+                           extra_tables: Sequence[TableData] = ()) -> Path:
+    """Self-contained sortable page: the leaderboard, optional paper tables, PNG figures."""
+    from ..report.render import html_page, table_html
+
+    data = leaderboard_table(lb, metrics_registry, "Leaderboard")
+    fragments = [table_html(data)] + [table_html(t) for t in extra_tables]
+    return atomic_write_text(path, html_page(title, fragments, figures))

@@ -1,0 +1,128 @@
+"""Seeded stratified bootstrap confidence intervals (rliable-style), NaN-aware and vectorised.
+
+The statistic is the mean over sequences. Resampling happens within each stratum (object):
+a stratum of k sequences contributes k draws with replacement to every resample, so each
+resample keeps the test set's object mix. The interval is the percentile interval of the
+resampled means (rliable's default).
+
+Caveats (documented, not hidden): a stratum with one sequence contributes no variance, so
+with many singleton strata the interval is narrower than an i.i.d. bootstrap would give;
+percentile intervals under-cover slightly for small n (about 93% at n = 30).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+
+from ..constants import BOOTSTRAP_ALPHA, BOOTSTRAP_CHUNK, BOOTSTRAP_N, BOOTSTRAP_SEED
+from ..errors import InputError
+
+
+class CI(NamedTuple):
+    """Mean of the finite values, percentile interval, counts of finite and NaN values."""
+
+    mean: float
+    lo: float
+    hi: float
+    n: int
+    n_nan: int
+
+
+def _check(values, strata, n_boot: int, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    s = np.zeros(v.shape, dtype=np.int64) if strata is None else np.asarray(strata).reshape(-1)
+    if s.shape != v.shape:
+        raise InputError(f"bootstrap: {v.size} values but {s.size} strata labels")
+    if np.isinf(v).any():
+        raise InputError("bootstrap: infinite values (failures must be NaN)")
+    if n_boot < 1 or not 0.0 < alpha < 1.0:
+        raise InputError(f"bootstrap: need n_boot >= 1 and 0 < alpha < 1 "
+                         f"(got {n_boot}, {alpha})")
+    return v, s
+
+
+def _layout(v: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Values sorted by (stratum, value) and, per position, its stratum's start and size.
+
+    Sorting by value within a stratum makes the result independent of the input row order.
+    """
+    _, codes = np.unique(s, return_inverse=True)
+    order = np.lexsort((v, codes))
+    v, codes = v[order], codes[order]
+    sizes = np.bincount(codes)
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    return v, starts[codes], sizes[codes]
+
+
+def bootstrap_means(values, strata=None, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED) -> np.ndarray:
+    """``(n_boot,)`` stratified-bootstrap means of the finite ``values``.
+
+    Drawn in chunks of about ``BOOTSTRAP_CHUNK`` indices (bounded memory). The generator
+    fills arrays in row-major order, so chunking does not change the draws: the result
+    depends on ``seed`` only.
+    """
+    v, s = _check(values, strata, n_boot, 0.5)
+    keep = ~np.isnan(v)
+    v, start, size = _layout(v[keep], s[keep])
+    if v.size == 0:
+        return np.full(n_boot, np.nan)
+    rng = np.random.default_rng(seed)
+    rows = max(1, BOOTSTRAP_CHUNK // v.size)
+    out = np.empty(n_boot)
+    for b0 in range(0, n_boot, rows):  # chunks, not resamples: each chunk is vectorised
+        b1 = min(n_boot, b0 + rows)
+        u = rng.random((b1 - b0, v.size))
+        idx = start + np.minimum((u * size).astype(np.int64), size - 1)
+        out[b0:b1] = v[idx].mean(axis=1)
+    return out
+
+
+def bootstrap_ci(values, strata=None, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
+                 alpha: float = BOOTSTRAP_ALPHA) -> CI:
+    """Mean and ``1 - alpha`` stratified-bootstrap percentile interval over sequences.
+
+    ``values`` (n,) per-sequence values (NaN = failed, excluded and counted); ``strata`` (n,)
+    labels (object names), ``None`` for one stratum. Returns ``CI(mean, lo, hi, n, n_nan)``;
+    with no finite value all three numbers are NaN.
+    """
+    v, s = _check(values, strata, n_boot, alpha)
+    nan = np.isnan(v)
+    n, n_nan = int((~nan).sum()), int(nan.sum())
+    if n == 0:
+        return CI(np.nan, np.nan, np.nan, 0, n_nan)
+    finite = v[~nan]
+    mean = float(finite.mean())
+    if finite.min() == finite.max():
+        # every resample of a constant sample is that constant; answer exactly instead of
+        # leaving a rounding-sized interval from the resampled sums
+        return CI(float(finite[0]), float(finite[0]), float(finite[0]), n, n_nan)
+    boots = bootstrap_means(v, s, n_boot=n_boot, seed=seed)
+    lo, hi = np.quantile(boots, [alpha / 2, 1 - alpha / 2])
+    return CI(mean, float(lo), float(hi), n, n_nan)
+
+
+SEQUENCE_KEYS = ("dataset", "split", "sequence", "object")
+
+
+def per_sequence(rows: pd.DataFrame) -> pd.DataFrame:
+    """One value per sequence: the NaN-skipping mean of its rows (hands, repeats).
+
+    ``rows`` has the results columns; returns columns ``dataset, split, sequence, object,
+    value`` in a canonical order. A sequence whose rows are all NaN keeps NaN (a failure to
+    count, not to hide).
+    """
+    if rows.empty:
+        return pd.DataFrame({k: [] for k in (*SEQUENCE_KEYS, "value")})
+    g = rows.groupby(list(SEQUENCE_KEYS), sort=True)["value"].mean()
+    return g.reset_index()
+
+
+def sequence_ci(rows: pd.DataFrame, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
+                alpha: float = BOOTSTRAP_ALPHA) -> CI:
+    """Mean over sequences with its object-stratified bootstrap interval (see module doc)."""
+    seq = per_sequence(rows)
+    return bootstrap_ci(seq["value"].to_numpy(dtype=np.float64), seq["object"].to_numpy(),
+                        n_boot=n_boot, seed=seed, alpha=alpha)

@@ -1,0 +1,476 @@
+"""Render computed tables (:class:`~grip_bench.bench.tables.TableData`) to Markdown, CSV,
+LaTeX (booktabs) and HTML (self-contained, click-to-sort).
+
+Conventions shared by all formats: ↓ / ↑ after a header say lower / higher is better; the
+best value per column (per metric, reference rows excluded, ties included) is bold; a cell
+shows ``mean [lo, hi]`` (95% bootstrap interval, omitted when fewer than 2 sequences) or
+``before → after [lo, hi]``; "–" marks a cell without results; NaN counts are footnoted.
+The output is a pure function of the inputs (no dates, sorted iteration): rendering twice
+gives identical bytes.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import io
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..bench.cache import atomic_write_text
+from ..bench.results import format_float, read_results, read_runtime
+from ..bench.stats import CI
+from ..bench.tables import TABLES, Cell, Column, Row, TableData, TableSpec, compute_table
+from ..constants import BOOTSTRAP_N, BOOTSTRAP_SEED
+from ..errors import InputError
+
+FORMATS = ("md", "csv", "tex", "html")
+MISSING = "–"
+WIDE_TABLE_COLUMNS = 6  # LaTeX: more columns than this use table* (full page width)
+_UNITS = {"cm3": "cm³", "m/s2": "m/s²", "m3": "m³"}
+_SUPERSCRIPT = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+# --- shared text helpers --------------------------------------------------------------------
+def display_unit(unit: str | None) -> str:
+    """Report unit as printed (``cm3`` -> ``cm³``)."""
+    return _UNITS.get(unit or "", unit or "")
+
+
+def arrow(higher_is_better: bool | None) -> str:
+    return "" if higher_is_better is None else ("↑" if higher_is_better else "↓")
+
+
+def _decorate(name: str, unit: str | None, hib: bool | None) -> str:
+    """``MPVPE (mm) ↓``: a name with its unit and direction when they are known."""
+    text = name + (f" ({display_unit(unit)})" if unit else "")
+    return f"{text} {arrow(hib)}".strip()
+
+
+def flat_header(col: Column) -> str:
+    """One-line header for formats without header groups: ``MPVPE R-Hand (mm) ↓``."""
+    return _decorate(f"{col.group} {col.label}".strip(), col.unit, col.higher_is_better)
+
+
+def section_title(row: Row) -> str:
+    return _decorate(row.group or "", row.group_unit, row.group_higher_is_better)
+
+
+def fmt_num(x: float, decimals: int) -> str:
+    text = f"{x:.{decimals}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0 else text  # no "-0.00"
+
+
+def _has_ci(ci: CI | None) -> bool:
+    return ci is not None and ci.n >= 2 and not np.isnan(ci.mean)
+
+
+def _shown(ci: CI | None) -> bool:
+    return ci is not None and not np.isnan(ci.mean)
+
+
+def header_spans(columns: Sequence[Column]) -> list[tuple[Column, int, bool]]:
+    """Consecutive columns sharing a group name, as (first column, span, unit_on_group).
+
+    ``unit_on_group`` says whether the unit and arrow go on the group header (all columns
+    of the span agree) or on each column's own label (Physics: % ↑ next to mm ↓).
+    """
+    spans: list[list] = []
+    for col in columns:
+        if spans and spans[-1][0].group == col.group:
+            spans[-1][1].append(col)
+        else:
+            spans.append([col, [col]])
+    out = []
+    for first, cols in spans:
+        same = len({(c.unit, c.higher_is_better) for c in cols}) == 1
+        out.append((first, len(cols), same))
+    return out
+
+
+def group_header(col: Column, unit_on_group: bool) -> str:
+    return _decorate(col.group, col.unit, col.higher_is_better) if unit_on_group else col.group
+
+
+def sub_header(col: Column, unit_on_group: bool) -> str:
+    return col.label if unit_on_group else _decorate(col.label, col.unit, col.higher_is_better)
+
+
+def sections(rows: Sequence[Row]) -> list[tuple[Row | None, list[Row]]]:
+    """Rows split where ``group`` changes; the first row of each block names the heading."""
+    out: list[tuple[Row | None, list[Row]]] = []
+    for row in rows:
+        if out and out[-1][1][-1].group == row.group:
+            out[-1][1].append(row)
+        else:
+            out.append((row if row.group else None, [row]))
+    return out
+
+
+def footnotes(data: TableData) -> tuple[dict[tuple[int, int], int], list[str]]:
+    """Numbered footnotes for cells with NaN sequences: {(row, col): number}, texts."""
+    marks: dict[tuple[int, int], int] = {}
+    texts: list[str] = []
+    for i, row in enumerate(data.rows):
+        for j, cell in enumerate(row.cells):
+            parts = []
+            for name, ci in (("", cell.ci), ("before: ", cell.before)):
+                if ci is not None and ci.n_nan:
+                    parts.append(f"{name}{ci.n_nan} of {ci.n + ci.n_nan} sequences gave NaN "
+                                 "and are excluded")
+            if parts:
+                marks[(i, j)] = len(texts) + 1
+                texts.append(f"{row.label}, {flat_header(data.columns[j])}: "
+                             + "; ".join(parts) + ".")
+    return marks, texts
+
+
+# --- Markdown -------------------------------------------------------------------------------
+def _md_escape(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def _md_cell(cell: Cell, mark: int | None) -> str:
+    if not _shown(cell.ci) and not (cell.paired and _shown(cell.before)):
+        text = MISSING
+    else:
+        after = MISSING if not _shown(cell.ci) else fmt_num(cell.ci.mean, cell.decimals)
+        if cell.best:
+            after = f"**{after}**"
+        if cell.paired:
+            before = fmt_num(cell.before.mean, cell.decimals) if _shown(cell.before) else MISSING
+            after = f"{before} → {after}"
+        if _has_ci(cell.ci):
+            after += (f" [{fmt_num(cell.ci.lo, cell.decimals)}, "
+                      f"{fmt_num(cell.ci.hi, cell.decimals)}]")
+        text = after
+    return text + (str(mark).translate(_SUPERSCRIPT) if mark else "")
+
+
+def to_markdown(data: TableData, heading_level: int = 3) -> str:
+    """GitHub-flavoured Markdown: one header row, section rows in bold, notes below."""
+    marks, notes = footnotes(data)
+    ncol = len(data.columns) + 1
+    lines = [f"{'#' * heading_level} {_md_escape(data.title)}", "",
+             f"`{data.id}` v{data.version}: {_md_escape(data.description)}", "",
+             "| " + " | ".join([data.row_header] + [_md_escape(flat_header(c))
+                                                   for c in data.columns]) + " |",
+             "|:--" + "|--:" * (ncol - 1) + "|"]
+    for i, row in enumerate(data.rows):
+        if row.group and (i == 0 or data.rows[i - 1].group != row.group):
+            lines.append(f"| **{_md_escape(section_title(row))}** |" + " |" * (ncol - 1))
+        cells = [_md_cell(c, marks.get((i, j))) for j, c in enumerate(row.cells)]
+        lines.append("| " + " | ".join([_md_escape(row.label)] + cells) + " |")
+    lines.append("")
+    lines += [f"{str(k).translate(_SUPERSCRIPT)} {_md_escape(t)}  " for k, t in
+              enumerate(notes, 1)]
+    lines += [f"- {_md_escape(n)}" for n in data.notes]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+# --- CSV (tidy, one line per cell) ----------------------------------------------------------
+CSV_COLUMNS = ("table", "version", "row_group", "row", "reference", "column_group", "column",
+               "method", "dataset", "split", "perturbation", "metric", "hand", "unit",
+               "higher_is_better", "value", "ci_low", "ci_high", "n", "n_nan",
+               "before_method", "before_value", "before_ci_low", "before_ci_high",
+               "before_n", "before_n_nan", "best")
+
+
+def _ci_fields(ci: CI | None) -> list[str]:
+    if ci is None:
+        return ["", "", "", "0", "0"]
+    return [format_float(ci.mean), format_float(ci.lo), format_float(ci.hi), str(ci.n),
+            str(ci.n_nan)]
+
+
+def _bool(v: bool | None) -> str:
+    return "" if v is None else ("true" if v else "false")
+
+
+def to_csv(data: TableData) -> str:
+    """Tidy CSV: one line per cell with full-precision values (shortest round-trip floats)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_COLUMNS)
+    for row in data.rows:
+        for col, cell in zip(data.columns, row.cells, strict=True):
+            f = cell.filters
+            before = cell.before if cell.paired else None
+            w.writerow([data.id, data.version, row.group or "", row.label, _bool(row.reference),
+                        col.group, col.label, f.get("method", ""), f.get("dataset", ""),
+                        f.get("split", ""), f.get("perturbation", ""), cell.metric or "",
+                        f.get("hand", ""), cell.unit, _bool(cell.higher_is_better),
+                        *_ci_fields(cell.ci),
+                        (cell.before_method or "") if cell.paired else "",
+                        *(_ci_fields(before) if cell.paired else [""] * 5),
+                        _bool(cell.best)])
+    return buf.getvalue()
+
+
+# --- LaTeX (booktabs) -----------------------------------------------------------------------
+_TEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
+                "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}",
+                "^": r"\textasciicircum{}", "↓": r"$\downarrow$", "↑": r"$\uparrow$",
+                "→": r"$\rightarrow$", "–": "--", "<": r"$<$", ">": r"$>$", "³": r"$^3$", "²": r"$^2$", "×": r"$\times$"}
+
+
+def tex_escape(text: str) -> str:
+    """Escape LaTeX specials and map the report's Unicode symbols to math."""
+    return "".join(_TEX_SPECIAL.get(ch, ch) for ch in text)
+
+
+def _tex_cell(cell: Cell, mark: int | None) -> str:
+    if not _shown(cell.ci) and not (cell.paired and _shown(cell.before)):
+        text = "--"
+    else:
+        after = fmt_num(cell.ci.mean, cell.decimals) if _shown(cell.ci) else "--"
+        if cell.best:
+            after = rf"\textbf{{{after}}}"
+        if cell.paired:
+            before = fmt_num(cell.before.mean, cell.decimals) if _shown(cell.before) else "--"
+            after = rf"{before} $\rightarrow$ {after}"
+        if _has_ci(cell.ci):
+            after += (rf" {{\scriptsize [{fmt_num(cell.ci.lo, cell.decimals)}, "
+                      rf"{fmt_num(cell.ci.hi, cell.decimals)}]}}")
+        text = after
+    return text + (f"$^{{{mark}}}$" if mark else "")
+
+
+def _tex_header(data: TableData) -> list[str]:
+    spans = header_spans(data.columns)
+    two_rows = any(c.label for c in data.columns)
+    if not two_rows:
+        heads = [tex_escape(_decorate(c.group, c.unit, c.higher_is_better)) for c in data.columns]
+        return [" & ".join([tex_escape(data.row_header)] + heads) + r" \\"]
+    top, rules, bottom, start = [""], [], [tex_escape(data.row_header)], 2
+    for col, span, on_group in spans:
+        text = tex_escape(group_header(col, on_group))
+        top.append(rf"\multicolumn{{{span}}}{{c}}{{{text}}}" if span > 1 else text)
+        if span > 1:
+            rules.append(rf"\cmidrule(lr){{{start}-{start + span - 1}}}")
+        bottom += [tex_escape(sub_header(c, on_group)) for c in data.columns[start - 2:start - 2 + span]]
+        start += span
+    lines = [" & ".join(top) + r" \\"]
+    if rules:
+        lines.append(" ".join(rules))
+    return lines + [" & ".join(bottom) + r" \\"]
+
+
+def to_latex(data: TableData) -> str:
+    """A ``table`` float with a booktabs ``tabular``; needs ``\\usepackage{booktabs}``."""
+    marks, notes = footnotes(data)
+    ncol = len(data.columns) + 1
+    env = "table*" if ncol > WIDE_TABLE_COLUMNS else "table"  # wide tables span both columns
+    lines = [f"% grip-bench table {data.id} v{data.version}; requires \\usepackage{{booktabs}}",
+             rf"\begin{{{env}}}[t]", r"\centering", r"\small",
+             rf"\caption{{{tex_escape(data.title)}}}", rf"\label{{tab:{data.id}}}",
+             rf"\begin{{tabular}}{{l{'c' * (ncol - 1)}}}", r"\toprule", *_tex_header(data),
+             r"\midrule"]
+    for i, row in enumerate(data.rows):
+        if row.group and (i == 0 or data.rows[i - 1].group != row.group):
+            if i > 0:
+                lines.append(r"\midrule")
+            lines.append(rf"\multicolumn{{{ncol}}}{{l}}{{\textit{{{tex_escape(section_title(row))}}}}} \\")
+        cells = [_tex_cell(c, marks.get((i, j))) for j, c in enumerate(row.cells)]
+        lines.append(" & ".join([tex_escape(row.label)] + cells) + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    foot = [f"$^{{{k}}}$ {tex_escape(t)}" for k, t in enumerate(notes, 1)]
+    foot += [tex_escape(n) for n in data.notes]
+    if foot:
+        lines += [r"\par\smallskip", r"{\footnotesize " + r" \\ ".join(foot) + "}"]
+    lines.append(rf"\end{{{env}}}")
+    return "\n".join(lines) + "\n"
+
+
+# --- HTML -----------------------------------------------------------------------------------
+_CSS = """body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:2em;color:#222}
+table{border-collapse:collapse;margin:1em 0;font-size:14px}
+th,td{padding:4px 10px;text-align:right;white-space:nowrap}
+thead th{border-bottom:1px solid #444;text-align:center}
+thead{border-top:2px solid #222}table{border-bottom:2px solid #222}
+th[data-col]{cursor:pointer}th[data-col]:hover{background:#eef}
+th[aria-sort=ascending]::after{content:' \\25B2'}th[aria-sort=descending]::after{content:' \\25BC'}
+tbody th{text-align:left;font-weight:normal}tr.section th{font-style:italic;text-align:left;
+border-top:1px solid #aaa}td .ci{color:#666;font-size:85%}td.best .v{font-weight:bold}
+tr.reference{color:#555}.notes{font-size:13px;color:#444}figure{display:inline-block;margin:1em}
+figure img{max-width:560px}"""
+
+# Click a header to sort each section's rows by that column (numbers by data-v, text
+# otherwise); cells without a value sort last in both directions.
+_JS = """(function(){
+function key(r,c){var x=r.cells[c];if(!x)return null;var v=x.getAttribute('data-v');
+if(v!==null&&v!=='')return parseFloat(v);return c===0?x.textContent.trim():null;}
+function cmp(a,b,asc){if(a===null&&b===null)return 0;if(a===null)return 1;if(b===null)return -1;
+var d=(typeof a==='number'&&typeof b==='number')?a-b:String(a).localeCompare(String(b));
+return asc?d:-d;}
+document.querySelectorAll('table.sortable').forEach(function(t){
+var hs=t.querySelectorAll('thead th[data-col]');
+hs.forEach(function(h){h.addEventListener('click',function(){
+var c=parseInt(h.getAttribute('data-col'),10);var asc=h.getAttribute('aria-sort')!=='ascending';
+hs.forEach(function(o){o.removeAttribute('aria-sort');});
+h.setAttribute('aria-sort',asc?'ascending':'descending');
+Array.prototype.forEach.call(t.tBodies,function(tb){
+var rs=Array.prototype.filter.call(tb.rows,function(r){return !r.classList.contains('section');});
+rs.sort(function(a,b){return cmp(key(a,c),key(b,c),asc);});
+rs.forEach(function(r){tb.appendChild(r);});});});});});})();"""
+
+
+def _esc(text: str) -> str:
+    return html.escape(text, quote=True)
+
+
+def _html_cell(cell: Cell, mark: int | None) -> str:
+    classes = ["best"] if cell.best else []
+    if not _shown(cell.ci) and not (cell.paired and _shown(cell.before)):
+        body, value = MISSING, ""
+    else:
+        after = fmt_num(cell.ci.mean, cell.decimals) if _shown(cell.ci) else MISSING
+        body = f'<span class="v">{after}</span>'
+        if cell.paired:
+            before = fmt_num(cell.before.mean, cell.decimals) if _shown(cell.before) else MISSING
+            body = f"{before} → {body}"
+        if _has_ci(cell.ci):
+            body += (f' <span class="ci">[{fmt_num(cell.ci.lo, cell.decimals)}, '
+                     f"{fmt_num(cell.ci.hi, cell.decimals)}]</span>")
+        value = format_float(cell.ci.mean) if _shown(cell.ci) else ""
+    if mark:
+        body += f"<sup>{mark}</sup>"
+    cls = f' class="{" ".join(classes)}"' if classes else ""
+    dv = f' data-v="{value}"' if value else ""
+    return f"<td{cls}{dv}>{body}</td>"
+
+
+def _html_head(data: TableData) -> list[str]:
+    two_rows = any(c.label for c in data.columns)
+    rs = ' rowspan="2"' if two_rows else ""
+    top = [f'<th data-col="0"{rs}>{_esc(data.row_header)}</th>']
+    bottom, j = [], 1
+    for col, span, on_group in header_spans(data.columns):
+        text = _esc(group_header(col, on_group))
+        if span == 1 and not col.label:
+            top.append(f'<th data-col="{j}"{rs}>{_esc(_decorate(col.group, col.unit, col.higher_is_better))}</th>')
+        else:
+            top.append(f'<th colspan="{span}">{text}</th>' if span > 1 else f"<th>{text}</th>")
+            bottom += [f'<th data-col="{j + k}">{_esc(sub_header(c, on_group))}</th>'
+                       for k, c in enumerate(data.columns[j - 1:j - 1 + span])]
+        j += span
+    rows = ["<tr>" + "".join(top) + "</tr>"]
+    if two_rows:
+        rows.append("<tr>" + "".join(bottom) + "</tr>")
+    return rows
+
+
+def table_html(data: TableData) -> str:
+    """An HTML fragment: heading, sortable table, footnotes and notes."""
+    marks, notes = footnotes(data)
+    ncol = len(data.columns) + 1
+    out = [f'<section id="{_esc(data.id)}">', f"<h2>{_esc(data.title)}</h2>",
+           f'<p class="notes"><code>{_esc(data.id)}</code> v{data.version}: '
+           f"{_esc(data.description)}</p>",
+           '<table class="sortable">', "<thead>", *_html_head(data), "</thead>"]
+    offset = 0
+    for head, rows in sections(data.rows):
+        out.append("<tbody>")
+        if head is not None:
+            out.append(f'<tr class="section"><th colspan="{ncol}">'
+                       f"{_esc(section_title(head))}</th></tr>")
+        for i, row in enumerate(rows, offset):
+            cls = ' class="reference"' if row.reference else ""
+            cells = "".join(_html_cell(c, marks.get((i, j))) for j, c in enumerate(row.cells))
+            out.append(f'<tr{cls}><th scope="row">{_esc(row.label)}</th>{cells}</tr>')
+        offset += len(rows)
+        out.append("</tbody>")
+    out.append("</table>")
+    items = [f"<li><sup>{k}</sup> {_esc(t)}</li>" for k, t in enumerate(notes, 1)]
+    items += [f"<li>{_esc(n)}</li>" for n in data.notes]
+    if items:
+        out += ['<ul class="notes">', *items, "</ul>"]
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def _figure_html(path: str | os.PathLike) -> str:
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise InputError(f"cannot read figure: {e.strerror}", where=path) from None
+    if not data.startswith(b"\x89PNG\r\n\x1a\n"):
+        raise InputError("figure is not a PNG file", where=path)
+    b64 = base64.b64encode(data).decode("ascii")
+    name = _esc(path.stem.replace("_", " "))
+    return (f'<figure><img alt="{name}" src="data:image/png;base64,{b64}">'
+            f"<figcaption>{name}</figcaption></figure>")
+
+
+def html_page(title: str, fragments: Iterable[str],
+              figures: Sequence[str | os.PathLike] = ()) -> str:
+    """A self-contained page (inline CSS and JS, figures as data URIs, no network)."""
+    figs = [_figure_html(p) for p in figures]
+    body = [*fragments] + (['<section id="figures">', "<h2>Figures</h2>", *figs, "</section>"]
+                           if figs else [])
+    return "\n".join(["<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
+                      f"<title>{_esc(title)}</title>", f"<style>{_CSS}</style>", "</head>",
+                      "<body>", f"<h1>{_esc(title)}</h1>", *body, f"<script>{_JS}</script>",
+                      "</body>", "</html>"]) + "\n"
+
+
+def to_html(data: TableData, figures: Sequence[str | os.PathLike] = ()) -> str:
+    """A standalone sortable HTML page for one table."""
+    return html_page(data.title, [table_html(data)], figures)
+
+
+RENDERERS = {"md": to_markdown, "csv": to_csv, "tex": to_latex, "html": to_html}
+
+
+# --- entry points ---------------------------------------------------------------------------
+def render(data: TableData, fmt: str) -> str:
+    """Text of ``data`` in one of :data:`FORMATS`."""
+    if fmt not in RENDERERS:
+        raise InputError(f"unknown table format '{fmt}' (known: {', '.join(FORMATS)})")
+    return RENDERERS[fmt](data)
+
+
+def render_table(spec: TableSpec | str, results: pd.DataFrame | None, fmt: str = "md", *,
+                 runtime: pd.DataFrame | None = None, dataset: str | None = None,
+                 metrics_registry=None, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED) -> str:
+    """Compute one table (by spec or registered id) from results frames and render it."""
+    if isinstance(spec, str):
+        spec = TABLES.get(spec)
+    data = compute_table(spec, results, runtime, dataset=dataset,
+                         metrics_registry=metrics_registry, n_boot=n_boot, seed=seed)
+    return render(data, fmt)
+
+
+def _write_all_formats(data: TableData, out: Path, formats: Sequence[str]) -> list[Path]:
+    return [atomic_write_text(out / f"{data.id}.{fmt}", render(data, fmt)) for fmt in formats]
+
+
+def render_all(results_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
+               formats: Sequence[str] = FORMATS, metrics_registry=None,
+               n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED) -> list[Path]:
+    """Write every registered table in every format from ``results_dir`` into ``out_dir``.
+
+    Reads ``results.csv`` (required) and ``runtime.csv`` (optional). With results from one
+    dataset the files go to ``out_dir/<table>.<fmt>``; with several, results tables go to
+    ``out_dir/<dataset>/`` (never pooling datasets) and the runtime table stays in ``out_dir``.
+    """
+    results_dir, out_dir = Path(results_dir), Path(out_dir)
+    results = read_results(results_dir / "results.csv")
+    runtime_path = results_dir / "runtime.csv"
+    runtime = read_runtime(runtime_path) if runtime_path.is_file() else None
+    datasets = sorted(results["dataset"].unique()) or [None]
+    written: list[Path] = []
+    for spec in TABLES:
+        targets = [None] if spec.source == "runtime" else datasets
+        for ds in targets:
+            out = out_dir / ds if ds is not None and len(datasets) > 1 else out_dir
+            data = compute_table(spec, results, runtime, dataset=ds,
+                                 metrics_registry=metrics_registry, n_boot=n_boot, seed=seed)
+            written += _write_all_formats(data, out, formats)
+    return written

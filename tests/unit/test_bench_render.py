@@ -1,0 +1,248 @@
+"""Rendering: hand-checked tables, bold-best, before→after, LaTeX/HTML structure, determinism."""
+
+from __future__ import annotations
+
+import math
+import re
+import shutil
+import subprocess
+from html.parser import HTMLParser
+
+import pandas as pd
+import pytest
+
+from grip_bench.bench import results as R
+from grip_bench.bench.results import ResultRow, write_results, write_runtime
+from grip_bench.bench.tables import TABLES, compute_table
+from grip_bench.report.render import FORMATS, render, render_all, render_table
+
+from .test_bench_results import UNITS, synthetic_results
+
+OBJECTS = ("mug", "apple", "mug")  # 3 sequences, 2 objects
+
+
+def _frame(cells) -> pd.DataFrame:
+    """{(method, perturbation, metric, hand): value or [values per sequence]} -> results."""
+    rows = []
+    for (method, pert, metric, hand), vals in cells.items():
+        vals = vals if isinstance(vals, list) else [vals] * len(OBJECTS)
+        for k, (obj, v) in enumerate(zip(OBJECTS, vals, strict=True)):
+            rows.append(ResultRow(method, "synthgrab", "test", pert, f"s{k}", obj, hand, metric,
+                                  v, UNITS[metric], 30))
+    return R.validate(R.to_frame(rows))
+
+
+PAPER_FUTURE = {  # GRIP Table 4-right: (right, left) MPVPE per number of future frames
+    "grip-future0": (9.21, 8.18), "grip-future3": (8.94, 7.78),
+    "grip-future5": (8.34, 7.29), "grip-future10": (7.88, 6.17)}
+
+
+def _future_frame(override=None):
+    cells = {}
+    for m, (r, lft) in PAPER_FUTURE.items():
+        cells[(m, "none", "mpvpe", "right")] = r
+        cells[(m, "none", "mpvpe", "left")] = lft
+    cells.update(override or {})
+    return _frame({k: v for k, v in cells.items() if v is not None})
+
+
+EXPECTED_FUTURE_MD = """\
+### Number of future frames vs accuracy
+
+`table4_future` v1: GRIP trained with 0 / 3 / 5 / 10 future frames of object motion (GRIP Table 4, right)
+
+| # Future frames | MPVPE R-Hand (mm) ↓ | MPVPE L-Hand (mm) ↓ |
+|:--|--:|--:|
+| 0 | 9.21 [9.21, 9.21] | 8.18 [8.18, 8.18] |
+| 3 | 8.94 [8.94, 8.94] | 7.78 [7.78, 7.78] |
+| 5 | 8.34 [8.34, 8.34] | 7.29 [7.29, 7.29] |
+| 10 | **7.88** [7.88, 7.88] | **6.17** [6.17, 6.17] |
+
+- 0 future frames runs in real time; n > 0 adds a latency of n frames (n / 30 s).
+"""
+
+
+def test_hand_checked_markdown():
+    assert render_table("table4_future", _future_frame(), "md", n_boot=50) == EXPECTED_FUTURE_MD
+
+
+def test_ties_at_display_precision_are_both_bold():
+    df = _future_frame()
+    df.loc[(df["method"] == "grip-future5") & (df["hand"] == "right"), "value"] = 7.8801
+    md = render_table("table4_future", df, "md", n_boot=20)
+    assert "| 5 | **7.88** [7.88, 7.88]" in md and "| 10 | **7.88** [7.88, 7.88]" in md
+
+
+def test_missing_cells_and_nan_footnotes():
+    df = _future_frame({("grip-future3", "none", "mpvpe", "left"): None,
+                        ("grip-future0", "none", "mpvpe", "right"): [9.21, math.nan, 9.21]})
+    md = render_table("table4_future", df, "md", n_boot=20)
+    assert "| 0 | 9.21 [9.21, 9.21]¹ | 8.18" in md
+    assert "| 3 | 8.94 [8.94, 8.94] | – |" in md
+    assert "¹ 0, MPVPE R-Hand (mm) ↓: 1 of 3 sequences gave NaN and are excluded." in md
+
+
+def test_direction_and_reference_rows():
+    cells = {}
+    for m, iv, cr in [("grabnet", 2.65, 100.0), ("grabnet-smplx", 7.33, 87.0),
+                      ("manipnet", 2.68, 98.0), ("grip-no-rnet", 3.18, 96.0),
+                      ("grip", 2.38, 100.0), ("gt", 1.95, 100.0)]:
+        cells[(m, "none", "iv", "right")] = iv
+        cells[(m, "none", "contact_ratio", "right")] = cr
+    md = render_table("table4_grasp", _frame(cells), "md", n_boot=20)
+    assert "| Grasp synthesis | Penetr. (cm³) ↓ | Cont. ratio (%) ↑ |" in md
+    assert "| GRIP (w/ RNet) | **2.38** [2.38, 2.38] | **100.00** [100.00, 100.00] |" in md
+    assert "| GrabNet | 2.65 [2.65, 2.65] | **100.00** [100.00, 100.00] |" in md  # tie
+    assert "| Ground truth | 1.95 [1.95, 1.95] | 100.00 [100.00, 100.00] |" in md  # reference
+
+
+def _table3_frame():
+    cells = {("perturbed-input", "T0.01", "mpvpe", "right"): 16.0,
+             ("perturbed-input", "T0.01", "mpvpe", "left"): 18.0,
+             ("grip", "T0.01", "mpvpe", "right"): 10.3, ("grip", "T0.01", "mpvpe", "left"): 10.3,
+             ("toch", "T0.01", "mpvpe", "right"): 11.8, ("toch", "T0.01", "mpvpe", "left"): 11.8,
+             ("grip", "R0.3", "mpjpe", "right"): [3.0, 3.5, 4.0],
+             ("grip", "none", "mpvpe", "right"): 1.0}  # clean runs must not leak in
+    return _frame(cells)
+
+
+def test_before_after_cells():
+    md = render_table("table3_perturbation", _table3_frame(), "md", n_boot=200)
+    lines = md.splitlines()
+    assert "| Model | GRAB-T (0.01) | GRAB-T (0.02) | GRAB-R (0.3) | GRAB-R (0.5) |" in lines
+    assert "| **MPVPE (mm) ↓** | | | | |" in lines
+    mpvpe = lines[lines.index("| **MPVPE (mm) ↓** | | | | |") + 1:][:2]
+    assert mpvpe[0] == "| TOCH-style | 17.00 → 11.80 [11.80, 11.80] | – | – | – |"
+    assert mpvpe[1] == "| GRIP (ANet+RNet) | 17.00 → **10.30** [10.30, 10.30] | – | – | – |"
+    # after without a before shows "–" before the arrow; sequences 3.0 (mug), 3.5 (apple),
+    # 4.0 (mug): stratified resamples keep one apple, so the means span [19/6, 23/6]
+    assert "| GRIP (ANet+RNet) | – | – | – → **3.50** [3.17, 3.83] | – |" in md
+    tidy = render_table("table3_perturbation", _table3_frame(), "csv", n_boot=20)
+    row = [ln for ln in tidy.splitlines() if ",GRIP (ANet+RNet),false,GRAB-T,(0.01)," in ln
+           and ",mpvpe," in ln][0]
+    assert ",perturbed-input,17.0,17.0,17.0,3,0,true" in row
+
+
+class _Balance(HTMLParser):
+    VOID = {"meta", "img", "br", "hr", "input", "link"}
+
+    def __init__(self):
+        super().__init__()
+        self.stack, self.errors = [], []
+
+    def handle_starttag(self, tag, attrs):
+        if tag not in self.VOID:
+            self.stack.append(tag)
+
+    def handle_endtag(self, tag):
+        if not self.stack or self.stack.pop() != tag:
+            self.errors.append(tag)
+
+
+def _check_latex(tex: str, ncols: int) -> None:
+    plain = tex.replace(r"\{", "").replace(r"\}", "")
+    assert plain.count("{") == plain.count("}")
+    pos = [tex.index(k) for k in (r"\begin{tabular}", r"\toprule", r"\midrule", r"\bottomrule",
+                                  r"\end{tabular}")]
+    assert pos == sorted(pos)
+    env = "table*" if r"\begin{table*}" in tex else "table"
+    assert tex.count(rf"\begin{{{env}}}") == tex.count(rf"\end{{{env}}}") == 1
+    body = tex[tex.index(r"\midrule"):tex.index(r"\bottomrule")]
+    for line in body.splitlines():
+        if line.endswith(r"\\") and not line.startswith(r"\multicolumn"):
+            assert len(re.findall(r"(?<!\\)&", line)) == ncols - 1, line
+
+
+def test_every_table_renders_in_every_format(tmp_path):
+    df = synthetic_results(
+        methods=tuple(sorted({m for s in TABLES for m in s.methods()})),
+        perturbations=("none", "T0.01", "T0.02", "R0.3", "R0.5"), n_seq=4,
+        metrics=("mpvpe", "mpjpe", "cc", "iv", "contact_ratio", "sim_stable", "sim_disp",
+                 "sim_disp_hold"))
+    runtime = pd.DataFrame({"method": ["grip"], "mode": ["full"], "device": ["cpu"],
+                            "batch": [1], "seconds_per_frame": [0.022],
+                            "frames_per_second": [45.0]})
+    for spec in TABLES:
+        data = compute_table(spec, df, runtime, n_boot=50)
+        assert any(c.best for r in data.rows for c in r.cells), spec.id
+        out = {fmt: render(data, fmt) for fmt in FORMATS}
+        assert "**" in out["md"] and out["md"].count("\n|") >= len(spec.rows) + 1
+        assert len(out["csv"].splitlines()) == 1 + len(data.rows) * len(spec.columns)
+        _check_latex(out["tex"], len(spec.columns) + 1)
+        assert r"\textbf{" in out["tex"]
+        assert ("$\\downarrow$" in out["tex"]) or ("$\\uparrow$" in out["tex"])
+        parser = _Balance()
+        parser.feed(out["html"])
+        assert not parser.errors and not parser.stack, spec.id
+        assert '<table class="sortable">' in out["html"] and 'data-col="1"' in out["html"]
+        assert "http" not in out["html"].replace("http-equiv", "")
+
+
+def test_latex_escapes_labels():
+    df = _future_frame()
+    tex = render_table("table4_future", df, "tex", n_boot=20)
+    assert r"\# Future frames" in tex and r"(mm) $\downarrow$" in tex
+    assert r"\textbf{7.88} {\scriptsize [7.88, 7.88]}" in tex
+    t3 = render_table("table3_perturbation", _table3_frame(), "tex", n_boot=20)
+    assert r"17.00 $\rightarrow$ \textbf{10.30}" in t3 and r"\cmidrule(lr){2-3}" in t3
+
+
+@pytest.mark.skipif(shutil.which("node") is None, reason="node not installed")
+def test_html_click_to_sort_script(tmp_path):
+    page = render_table("table4_future", _future_frame(), "html", n_boot=20)
+    script = re.search(r"<script>(.*)</script>", page, re.S).group(1)
+    (tmp_path / "sort.js").write_text(script)
+    harness = """
+const script = require('fs').readFileSync(process.argv[2], 'utf8');
+function cell(t, v) { return {textContent: t, getAttribute: k => (k === 'data-v' && v !== undefined) ? v : null}; }
+function row(l, v) { return {cells: [cell(l), cell(String(v), v === null ? undefined : String(v))],
+                             classList: {contains: () => false}}; }
+const tb = {rows: [row('b', 2), row('a', 3), row('c', null), row('d', 1)],
+            appendChild(r) { this.rows.splice(this.rows.indexOf(r), 1); this.rows.push(r); }};
+const handlers = {};
+function th(col) { const a = {'data-col': String(col)};
+  return {getAttribute: k => (k in a ? a[k] : null), setAttribute: (k, v) => { a[k] = v; },
+          removeAttribute: k => { delete a[k]; }, addEventListener: (e, f) => { handlers[col] = f; }}; }
+const table = {querySelectorAll: () => [th(0), th(1)], tBodies: [tb]};
+global.document = {querySelectorAll: () => [table]};
+eval(script);
+const order = () => tb.rows.map(r => r.cells[0].textContent).join('');
+handlers[1](); const asc = order(); handlers[1](); const desc = order(); handlers[0]();
+console.log(asc + ' ' + desc + ' ' + order());
+"""
+    (tmp_path / "harness.js").write_text(harness)
+    out = subprocess.run(["node", str(tmp_path / "harness.js"), str(tmp_path / "sort.js")],
+                         capture_output=True, text=True, timeout=60, check=True).stdout
+    assert out.strip() == "dbac abdc abcd"  # empty cells last in both directions
+
+
+def _results_dir(tmp_path, datasets=("synthgrab",)):
+    frames = [synthetic_results(methods=("grip", "grip-no-rnet", "gt", "toch",
+                                         "perturbed-input"),
+                                perturbations=("none", "T0.01"), n_seq=4, dataset=d,
+                                metrics=("mpvpe", "iv", "sim_stable")) for d in datasets]
+    res = tmp_path / "res"
+    write_results(pd.concat(frames), res / "results.csv")
+    write_runtime(pd.DataFrame({"method": ["grip", "grip"], "mode": ["full"] * 2,
+                                "device": ["cpu"] * 2, "batch": [1, 1],
+                                "seconds_per_frame": [0.02, 0.03],
+                                "frames_per_second": [50.0, 33.3]}), res / "runtime.csv")
+    return res
+
+
+def test_render_all_is_byte_deterministic(tmp_path):
+    res = _results_dir(tmp_path)
+    a = render_all(res, tmp_path / "a", n_boot=100)
+    b = render_all(res, tmp_path / "b", n_boot=100)
+    assert len(a) == len(TABLES) * len(FORMATS)
+    for pa, pb in zip(a, b, strict=True):
+        assert pa.name == pb.name and pa.read_bytes() == pb.read_bytes()
+    assert "GRIP (CNet + RNet) (full, cpu, batch 1)" in (tmp_path / "a" / "runtime.md").read_text()
+
+
+def test_render_all_splits_datasets(tmp_path):
+    res = _results_dir(tmp_path, datasets=("grab", "synthgrab"))
+    written = render_all(res, tmp_path / "out", formats=("md",), n_boot=20)
+    names = sorted(str(p.relative_to(tmp_path / "out")) for p in written)
+    assert "grab/table2_ablation.md" in names and "synthgrab/physics.md" in names
+    assert "runtime.md" in names and len(names) == 2 * (len(TABLES) - 1) + 1
