@@ -245,18 +245,40 @@ class DistanceField:
         )  # fmt: skip
         return vals.view(vol.shape[1], -1).T.numpy(), trusted.view(-1).numpy() < 0.5
 
-    def signed_distance(self, points):
-        """Signed distance ``(...)`` (m, negative inside) of points ``(..., 3)``, grid + exact fallback."""
+    def signed_distance(self, points, far: str = "exact"):
+        """Signed distance ``(...)`` (m, negative inside) of points ``(..., 3)``, grid + exact fallback.
+
+        ``far="bound"`` answers points outside the grid with their distance to the
+        object's bounding box instead: a lower bound of the true distance, exact enough
+        for contact tests and safe for sphere tracing, and ~100x cheaper than the exact
+        path for the many far points of a hand near an object.
+        """
+        if far not in ("exact", "bound"):
+            raise ValueError(f"far must be 'exact' or 'bound', got {far!r}")
         p, lead, back = _to_numpy(points)
         out = np.empty(len(p))
         for s in range(0, len(p), _CHUNK):
             q = p[s : s + _CHUNK]
             d, exact = self._grid(q, self._vol)
             d = d[:, 0].astype(np.float64)
+            if far == "bound" and exact.any():
+                outside = self._outside_grid(q)
+                d[outside] = self._box_distance(q[outside])
+                exact &= ~outside
             if exact.any():
                 d[exact] = self._exact(q[exact])[0]
             out[s : s + _CHUNK] = d
         return back(out.reshape(lead))
+
+    def _outside_grid(self, q: np.ndarray) -> np.ndarray:
+        """Points ``(N, 3)`` beyond the grid's nodes ``(N,)`` bool."""
+        hi = self.origin + self.spacing * (np.array(self.shape) - 1)
+        return ((q < self.origin) | (q > hi)).any(axis=1)
+
+    def _box_distance(self, q: np.ndarray) -> np.ndarray:
+        """Distance ``(N,)`` from points to the mesh's bounding box (a lower bound of the SDF outside)."""
+        lo, hi = self.mesh.bounds
+        return np.linalg.norm(np.maximum(np.maximum(lo - q, q - hi), 0.0), axis=1)
 
     def gradient(self, points):
         """Unit SDF gradient ``(..., 3)`` (outward surface normal direction) at points ``(..., 3)``.

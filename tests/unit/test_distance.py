@@ -210,3 +210,19 @@ def test_types_and_shapes_follow_input(fields):
     assert df.signed_distance(np.zeros((0, 3))).shape == (0,)
     with pytest.raises(ValueError, match="points"):
         df.signed_distance(np.zeros((4, 2)))
+
+
+def test_far_bound_is_a_lower_bound_outside_and_exact_inside(fields):
+    field = fields["mug"]
+    rng = np.random.default_rng(3)
+    far = rng.uniform(-0.4, 0.4, (2000, 3))
+    far = far[field._outside_grid(far)]  # inside the grid both modes read the grid
+    assert len(far) > 500
+    near = field.mesh.sample(300, seed=4) + rng.normal(0, 0.005, (300, 3))
+    exact_far = field.exact_signed_distance(far)
+    bound_far = field.signed_distance(far, far="bound")
+    assert np.all(bound_far <= exact_far + 1e-9)  # safe for sphere tracing
+    assert np.all(bound_far >= 0.0)  # far points are never reported inside
+    np.testing.assert_array_equal(field.signed_distance(near, far="bound"), field.signed_distance(near))
+    with pytest.raises(ValueError, match="far"):
+        field.signed_distance(near, far="nope")

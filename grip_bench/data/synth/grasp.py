@@ -1,0 +1,409 @@
+"""Grasp synthesis for SynthGRAB: place the palm on the object, then close the fingers.
+
+Per candidate hand orientation (batched over candidates):
+1. *Pre-shape* the hand for the grasp type (power, handle, precision/tripod, bimanual).
+2. *Place*: start outside the object and sphere-trace the pre-shaped hand along its
+   palm normal until its nearest vertex is ``GAP`` from the surface (distance fields
+   are 1-Lipschitz, so stepping by the current clearance never jumps inside).
+3. *Close*: for each finger, flex its joints proximal to distal; each joint flexes
+   until the part of the finger it moves touches the surface (``GAP``) or reaches its
+   limit (GraspIt's auto-grasp scheme), found by a coarse sweep and a bisection.
+4. *Score*: thumb plus at least one finger in contact (palm and fingers for bimanual
+   holds), no penetration, clear of the table, and a wrist orientation close to the
+   natural one for a hand coming from the subject.
+
+Everything is in the object's own frame (y up, resting on ``y = -rest_height``).
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ...bodies.hand import ProceduralHand
+from ...bodies.layouts import HAND_PARTS
+from ...constants import CONTACT_THRESHOLD
+from ...geometry.distance import DistanceField
+from ...geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+
+GAP = 0.0008  # m; resting clearance of a closed segment (well inside the 4.5 mm contact band)
+MAX_PENETRATION = 0.002  # m; deepest tolerated vertex of an accepted grasp
+TABLE_CLEARANCE = 0.004  # m; hand vertices must stay this far above the table
+SWEEP_STEPS = 10  # coarse flexion steps per joint level
+BISECT_STEPS = 4  # refinement halvings after the sweep (~0.6 deg at the end)
+
+CHAINS = {"index": (0, 1, 2), "middle": (3, 4, 5), "pinky": (6, 7, 8),
+          "ring": (9, 10, 11), "thumb": (12, 13, 14)}
+FINGERS = ("thumb", "index", "middle", "ring", "pinky")
+
+# Pre-shapes as local (flexion, abduction, twist) degrees per joint kind.
+_OPEN = {"mcp": (4, 0, 0), "pip": (6, 0, 0), "dip": (4, 0, 0),
+         "thumb_cmc": (0, 28, 15), "thumb_mcp": (5, 0, 0), "thumb_ip": (5, 0, 0)}
+# Pinch: index and middle pads meet the thumb pad; measured on the procedural hand,
+# the tips touch at _PINCH_CLOSED, and _PINCH opens it so an object fits between.
+_PINCH_CLOSED = {"mcp": (35, 0, 0), "pip": (50, 0, 0), "dip": (25, 0, 0),
+                 "thumb_cmc": (15, 0, 20), "thumb_mcp": (10, 0, 0), "thumb_ip": (40, 0, 0)}
+_PINCH = {"mcp": (12, 0, 0), "pip": (15, 0, 0), "dip": (5, 0, 0),
+          "thumb_cmc": (-15, 0, 20), "thumb_mcp": (0, 0, 0), "thumb_ip": (0, 0, 0)}
+_TUCKED = {"mcp": (55, 0, 0), "pip": (70, 0, 0), "dip": (35, 0, 0)}
+# Closing direction in local coordinates: fingers flex; the thumb's CMC also opposes.
+_THUMB_CMC_CLOSE = np.array([1.0, 0.35, 0.0]) / np.linalg.norm([1.0, 0.35, 0.0])
+
+
+@dataclass
+class Grasp:
+    """A hand holding an object, in the object's frame.
+
+    ``R`` (3, 3) and ``t`` (3,) place the wrist: ``x_obj = R @ x_hand + t``.
+    ``hand_pose`` / ``open_pose`` are (15, 3) axis-angles (closed / pre-shape).
+    ``approach`` (3,) is the unit direction the hand came from (object -> hand).
+    """
+
+    side: str
+    kind: str
+    R: np.ndarray
+    t: np.ndarray
+    hand_pose: np.ndarray
+    open_pose: np.ndarray
+    approach: np.ndarray
+    contact_parts: tuple[str, ...] = ()
+    penetration: float = 0.0
+    score: float = 0.0
+    info: dict = field(default_factory=dict)
+
+
+def _kind_of(j: int) -> str:
+    """Joint kind of finger joint ``j`` (0..14)."""
+    k = j % 3
+    return ("thumb_cmc", "thumb_mcp", "thumb_ip")[k] if j >= 12 else ("mcp", "pip", "dip")[k]
+
+
+def preshape_local(kind: str, table: dict | None = None) -> np.ndarray:
+    """Local pre-shape (15, 3) radians for a grasp kind (or an explicit per-kind table)."""
+    table = table or (_PINCH if kind in ("precision", "tripod") else _OPEN)
+    local = np.array([table[_kind_of(j)] for j in range(15)], dtype=float)
+    if kind == "precision":  # pinch: ring and pinky tucked out of the way
+        for j in CHAINS["ring"] + CHAINS["pinky"]:
+            local[j] = _TUCKED[_kind_of(j)]
+    return np.radians(local)
+
+
+def _close_dirs(kind: str) -> np.ndarray:
+    """Local closing direction per joint (15, 3): flexion; a power grasp's thumb also opposes."""
+    d = np.zeros((15, 3))
+    d[:, 0] = 1.0
+    if kind not in ("precision", "tripod"):
+        d[12] = _THUMB_CMC_CLOSE
+    return d
+
+
+@functools.lru_cache(maxsize=8)
+def _light_hand(side: str, scale: float) -> tuple[ProceduralHand, np.ndarray, ProceduralHand]:
+    """The full hand, the ids of a vertex subset, and a hand restricted to that subset.
+
+    Closing evaluates thousands of poses; a third of the vertices (plus tips and
+    proximity vertices) resolves the contacts while costing a third of the skinning.
+    """
+    full = ProceduralHand(side, scale).double()
+    keep = np.zeros(full.num_vertices, bool)
+    keep[::3] = True
+    keep[full.fingertip_ids] = True
+    keep[full.proximity_ids] = True
+    ids = np.flatnonzero(keep)
+    sub = copy.deepcopy(full)
+    sub.template_vertices = full.template_vertices[ids].clone()
+    sub.weights = full.weights[ids].clone()
+    remap = {int(v): k for k, v in enumerate(ids)}
+    sub.tip_index = torch.tensor([remap[int(v)] for v in full.fingertip_ids])
+    sub.bone_ids_subset = full.bone_ids[ids]
+    return full, ids, sub
+
+
+class GraspSynthesizer:
+    """Finds grasps of one object for hands of one size (see module docstring)."""
+
+    def __init__(self, mesh, df: DistanceField, hand_scale: float, *, rest_height: float,
+                 grasp_hint: str, handles=(), large: bool = False):
+        self.mesh, self.df = mesh, df
+        self.scale = float(hand_scale)
+        self.table_y = -float(rest_height)
+        self.hint, self.handles, self.large = grasp_hint, tuple(handles), large
+        self.centre = np.asarray(mesh.bounding_box.centroid, float)
+        self.radius = float(np.linalg.norm(mesh.extents) / 2)
+        self._axes = _principal_axes(np.asarray(mesh.vertices))
+
+    # -- public -------------------------------------------------------------------
+    def search(self, side: str, approach_dirs: np.ndarray, finger_ref: np.ndarray,
+               rng: np.random.Generator, *, kind: str | None = None, target: np.ndarray | None = None,
+               above_table: bool = True) -> Grasp | None:
+        """Best grasp for ``side`` among candidates built from approach directions.
+
+        approach_dirs (A, 3): unit object->hand directions (object frame) to try.
+        finger_ref (3,): preferred finger direction (object frame), e.g. away from the body.
+        Returns None if no candidate holds the object.
+        """
+        for k in ([kind] if kind else self._kinds()):
+            grasp = self._search_kind(side, approach_dirs, finger_ref, rng, k, target, above_table)
+            if grasp is not None:
+                return grasp
+        return None
+
+    def _search_kind(self, side, approach_dirs, finger_ref, rng, kind, target, above_table):
+        """:meth:`search` for one grasp kind."""
+        target = self._target(kind) if target is None else np.asarray(target, float)
+        dirs = self._steepen(np.asarray(approach_dirs, float)) if above_table else approach_dirs
+        R, rolls = self._orientations(side, dirs, finger_ref, kind)
+        full, ids, sub = _light_hand(side, self.scale)
+        local0 = np.broadcast_to(preshape_local(kind), (len(R), 15, 3)).copy()
+        if kind in ("precision", "tripod"):  # object centred between thumb and index tips
+            t = target[None] - np.einsum("cij,j->ci", R, self._anchor(sub, local0, kind))
+        else:
+            t = self._place(sub, R, local0, target, R @ full.palm_normal, kind)
+        ok = np.isfinite(t).all(axis=1)
+        if not ok.any():
+            return None
+        R, t, local0, rolls = R[ok], t[ok], local0[ok], rolls[ok]
+        local = self._close(sub, R, t, local0, kind)
+        return self._pick(full, side, kind, R, t, local, local0, rolls, rng, above_table)
+
+    # -- candidates ------------------------------------------------------------------
+    def _kinds(self) -> list[str]:
+        """Grasp kinds to try in order: the object's own hint first, then fallbacks."""
+        if self.large:
+            return ["bimanual"]
+        if self.hint == "handle" and self.handles:
+            return ["handle", "power", "precision"]
+        if self.hint in ("precision", "tripod"):
+            return ["precision", "power"]
+        return ["power", "precision"]
+
+    def _target(self, kind: str) -> np.ndarray:
+        if kind == "handle":
+            return np.asarray(self.handles[0].point, float)
+        if kind in ("precision", "tripod"):  # pinch the upper part, clear of the table
+            top = float(self.mesh.bounds[1, 1])
+            return np.array([self.centre[0], max(self.centre[1], top - 0.02), self.centre[2]])
+        return self.centre
+
+    def _steepen(self, dirs: np.ndarray) -> np.ndarray:
+        """Add steeper versions of the approach directions for objects low on the table.
+
+        A hand coming in level with a small object would put its fingers through the
+        table, so people come from above; objects lower than 12 cm get 60 and 80 degree
+        elevations of each given azimuth.
+        """
+        if self.mesh.extents[1] > 0.12:
+            return dirs
+        flat = dirs * np.array([1.0, 0.0, 1.0])
+        norm = np.linalg.norm(flat, axis=1, keepdims=True)
+        flat = np.where(norm > 1e-6, flat / np.maximum(norm, 1e-9), np.array([0.0, 0.0, -1.0]))
+        extra = [np.cos(e) * flat + np.sin(e) * np.array([0.0, 1.0, 0.0]) for e in np.radians([60, 80])]
+        return np.unique(np.round(np.vstack([dirs, *extra]), 6), axis=0)
+
+    def _orientations(self, side, approach_dirs, finger_ref, kind):
+        """Wrist rotations (C, 3, 3) for every approach and roll, and each roll angle (C,)."""
+        rolls = np.radians([0.0, -35.0, 35.0, -70.0, 70.0])
+        wrap = self._wrap_axis(kind)
+        Rs, roll_of = [], []
+        for d in np.asarray(approach_dirs, float):
+            n = -d / np.linalg.norm(d)  # palm faces into the object
+            f0 = finger_ref - (finger_ref @ n) * n
+            if np.linalg.norm(f0) < 1e-6:
+                f0 = np.cross(n, [1.0, 0.0, 0.0])
+            f0 /= np.linalg.norm(f0)
+            candidates = [(_rotate(f0, n, r), abs(r)) for r in rolls]
+            if wrap is not None and abs(wrap @ n) < 0.8:  # fingers wrap around the long axis
+                fw = np.cross(wrap, n)
+                fw /= np.linalg.norm(fw)
+                for s in (1.0, -1.0):
+                    fs = s * fw
+                    candidates.append((fs, float(np.arccos(np.clip(fs @ f0, -1, 1)))))
+            for f, r in candidates:
+                Rs.append(_hand_rotation(side, f, n))
+                roll_of.append(r)
+        return np.stack(Rs), np.asarray(roll_of)
+
+    def _wrap_axis(self, kind: str) -> np.ndarray | None:
+        """Axis the fingers should wrap around: a handle's axis or a clearly long object axis."""
+        if kind == "handle":
+            return np.asarray(self.handles[0].axis, float)
+        axes, spread = self._axes
+        return axes[0] if spread[0] > 1.6 * spread[1] else None
+
+    # -- placement and closing ---------------------------------------------------------
+    def _anchor(self, sub: ProceduralHand, local: np.ndarray, kind: str) -> np.ndarray:
+        """Point of the hand (hand frame) that should meet the target (3,).
+
+        Precision: where the thumb and index tips meet when the pinch closes, so closing
+        squeezes an object placed there from both sides. Power: the palm centre.
+        """
+        if kind in ("precision", "tripod"):
+            closed = preshape_local(kind, _PINCH_CLOSED)[None]
+            _, j = _pose(sub, np.eye(3)[None], np.zeros((1, 3)), closed)
+            return 0.5 * (j[0, 16] + j[0, 17])
+        v, j = _pose(sub, np.eye(3)[None], np.zeros((1, 3)), local[:1])
+        palm = j[0, [0, 4, 10]].mean(0)  # wrist, middle and ring knuckles: palm centre
+        return palm + 0.45 * (j[0, 5] - j[0, 4])  # a little towards the fingers
+
+    def _place(self, sub, R, local, target, n, kind):
+        """Wrist positions (C, 3) after sphere-tracing each candidate along its palm normal ``n`` (C, 3).
+
+        NaN rows: the hand passed the object without touching it.
+        """
+        anchor = self._anchor(sub, local, kind)
+        start = self.radius + 0.12
+        t = target[None] - np.einsum("cij,j->ci", R, anchor) - n * start
+        travelled = np.zeros(len(R))
+        done = np.zeros(len(R), bool)
+        for _ in range(40):
+            v, _ = _pose(sub, R, t, local)
+            clearance = self.df.signed_distance(v.reshape(-1, 3), far="bound").reshape(len(R), -1).min(1)
+            step = np.where(done, 0.0, np.maximum(clearance - GAP, 0.0))
+            done |= step < 2e-4
+            t = t + n * step[:, None]
+            travelled += step
+            if done.all():
+                break
+        missed = (~done) | (travelled > start + self.radius)
+        t[missed] = np.nan
+        return t
+
+    def _close(self, sub, R, t, local0, kind):
+        """Flex every finger proximal to distal until contact or limit. Returns local poses (C, 15, 3)."""
+        lower, upper = sub.joint_limits.lower, sub.joint_limits.upper
+        dirs = _close_dirs(kind)
+        bones = sub.bone_ids_subset
+        local = local0.copy()
+        for level in range(3):
+            joints = [CHAINS[f][level] for f in FINGERS]
+            moving = [np.isin(bones, np.array(CHAINS[f][level:]) + 1) for f in FINGERS]
+            room = np.stack([_room(local[:, j], dirs[j], lower[j], upper[j]) for j in joints], 1)
+            lo, hi = self._sweep(sub, R, t, local, joints, dirs, room, moving)
+            for _ in range(BISECT_STEPS):
+                mid = 0.5 * (lo + hi)
+                touching = self._touching(sub, R, t, _apply(local, joints, dirs, mid), moving)
+                hi = np.where(touching, mid, hi)
+                lo = np.where(touching, lo, mid)
+            local = _apply(local, joints, dirs, lo)
+        return local
+
+    def _sweep(self, sub, R, t, local, joints, dirs, room, moving):
+        """Coarse sweep: bracket (lo, hi) (C, 5) of the flexion where each finger first touches."""
+        C = len(R)
+        fr = np.linspace(0.0, 1.0, SWEEP_STEPS + 1)
+        amounts = fr[None, :, None] * room[:, None, :]  # (C, K, 5)
+        poses = np.repeat(local[:, None], len(fr), 1)
+        for k, j in enumerate(joints):
+            poses[:, :, j] += amounts[:, :, k, None] * dirs[j]
+        touch = self._touching(sub, np.repeat(R, len(fr), 0), np.repeat(t, len(fr), 0),
+                               poses.reshape(-1, 15, 3), moving).reshape(C, len(fr), 5)
+        first = np.where(touch.any(1), touch.argmax(1), len(fr))  # (C, 5)
+        idx = np.clip(first - 1, 0, len(fr) - 1)
+        lo = np.take_along_axis(amounts, idx[:, None, :], 1)[:, 0]
+        hi_idx = np.clip(first, 0, len(fr) - 1)
+        hi = np.take_along_axis(amounts, hi_idx[:, None, :], 1)[:, 0]
+        lo = np.where(first == 0, 0.0, lo)  # already touching at the start: do not flex
+        hi = np.where(first == 0, 0.0, hi)
+        full = first == len(fr)  # never touched: flex to the limit
+        lo = np.where(full, room, lo)
+        hi = np.where(full, room, hi)
+        return lo, hi
+
+    def _touching(self, sub, R, t, local, moving) -> np.ndarray:
+        """Whether each finger's moving part is within GAP of the surface (N, 5)."""
+        v, _ = _pose(sub, R, t, local)
+        sd = self.df.signed_distance(v.reshape(-1, 3), far="bound").reshape(len(R), -1)
+        return np.stack([sd[:, m].min(1) < GAP for m in moving], 1)
+
+    # -- scoring -----------------------------------------------------------------------
+    def _pick(self, full, side, kind, R, t, local, local0, rolls, rng, above_table):
+        """Evaluate the closed candidates on the full hand and return the best valid one."""
+        v, _ = _pose(full, R, t, local)
+        sd = self.df.signed_distance(v.reshape(-1, 3), far="bound").reshape(len(R), -1)
+        parts = full.part_labels
+        near = np.stack([(sd[:, parts == p].min(1) <= CONTACT_THRESHOLD) for p in range(len(HAND_PARTS))], 1)
+        pen = np.maximum(-sd.min(1), 0.0)
+        n_fingers = near[:, 2:].sum(1)
+        if kind == "bimanual":
+            holds = near[:, 0] & (n_fingers >= 2) | (n_fingers >= 3)
+        else:
+            holds = near[:, 1] & (n_fingers >= 1)
+        clear = (v[..., 1].min(1) > self.table_y + TABLE_CLEARANCE) if above_table else np.ones(len(R), bool)
+        valid = holds & clear & (pen <= MAX_PENETRATION)
+        if not valid.any():
+            return None
+        score = (near[:, 1:].sum(1) + 0.5 * near[:, 0] - 2.0 * rolls - 200.0 * pen
+                 + 0.3 * rng.random(len(R)))
+        best = int(np.argmax(np.where(valid, score, -np.inf)))
+        to_aa = _local_to_aa(full)
+        return Grasp(
+            side=side, kind=kind, R=R[best], t=t[best], hand_pose=to_aa(local[best]),
+            open_pose=to_aa(local0[best]), approach=-(R[best] @ full.palm_normal),
+            contact_parts=tuple(HAND_PARTS[p] for p in np.flatnonzero(near[best])),
+            penetration=float(pen[best]), score=float(score[best]),
+        )
+
+
+# --- small helpers -------------------------------------------------------------------
+def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotate ``v`` about unit ``axis`` by ``angle`` (Rodrigues)."""
+    return (v * np.cos(angle) + np.cross(axis, v) * np.sin(angle)
+            + axis * (axis @ v) * (1 - np.cos(angle)))
+
+
+def _hand_rotation(side: str, f: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Wrist rotation mapping the hand's finger direction to ``f`` and palm normal to ``n``."""
+    fh = np.array([-1.0, 0.0, 0.0]) if side == "right" else np.array([1.0, 0.0, 0.0])
+    nh = np.array([0.0, -1.0, 0.0])
+    src = np.stack([fh, nh, np.cross(fh, nh)], 1)
+    dst = np.stack([f, n, np.cross(f, n)], 1)
+    return dst @ src.T
+
+
+def _principal_axes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal axes (3, 3) rows sorted by spread, and the spreads (3,) (std along each)."""
+    c = points - points.mean(0)
+    w, vecs = np.linalg.eigh(c.T @ c / len(c))
+    order = np.argsort(w)[::-1]
+    return vecs[:, order].T, np.sqrt(np.maximum(w[order], 0))
+
+
+def _room(local_j: np.ndarray, d: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Largest step along closing direction ``d`` keeping joint ``j`` in its limits (C,)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = np.where(d > 0, (upper - local_j) / d, np.where(d < 0, (lower - local_j) / d, np.inf))
+    return np.clip(bound.min(1), 0.0, None)
+
+
+def _apply(local: np.ndarray, joints, dirs: np.ndarray, amount: np.ndarray) -> np.ndarray:
+    """Add ``amount`` (C, 5) along each joint's closing direction."""
+    out = local.copy()
+    for k, j in enumerate(joints):
+        out[:, j] += amount[:, k, None] * dirs[j]
+    return out
+
+
+def _pose(hand: ProceduralHand, R: np.ndarray, t: np.ndarray, local: np.ndarray):
+    """Posed vertices and joints (numpy, object frame) for local poses (C, 15, 3)."""
+    with torch.no_grad():
+        dtype = hand.template_vertices.dtype
+        go = matrix_to_axis_angle(torch.as_tensor(R, dtype=dtype))
+        pose = hand.from_local(torch.as_tensor(local, dtype=dtype))
+        v, j = hand(go, pose, torch.as_tensor(t, dtype=dtype))
+    return v.numpy(), j.numpy()
+
+
+def _local_to_aa(hand: ProceduralHand):
+    def to_aa(local: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return hand.from_local(torch.as_tensor(local, dtype=torch.float64)).numpy()
+    return to_aa
+
+
+def rotation_matrix(aa: np.ndarray) -> np.ndarray:
+    """Axis-angle (..., 3) -> rotation matrices (..., 3, 3), numpy float64."""
+    return axis_angle_to_matrix(torch.as_tensor(np.asarray(aa, float))).numpy()

@@ -1,0 +1,66 @@
+"""Grasp synthesis: the hand really holds the object, without penetrating it or the table."""
+
+import numpy as np
+import pytest
+import torch
+
+from grip_bench.constants import CONTACT_THRESHOLD
+from grip_bench.data.synth import grasp as G
+from grip_bench.data.synth.objects import make_instance
+from grip_bench.geometry.distance import DistanceField
+
+
+def _approach_dirs(side):
+    """Object->hand directions from the subject's side (subject at -z), three elevations."""
+    s = -1.0 if side == "right" else 1.0
+    out = []
+    for az in np.radians([0, 40]):
+        for el in np.radians([0, 40, 75]):
+            out.append([s * np.sin(az) * np.cos(el), np.sin(el), -np.cos(az) * np.cos(el)])
+    return np.array(out)
+
+
+def _synth(name):
+    obj = make_instance(name, np.random.default_rng(0), 0)
+    df = DistanceField(obj.mesh)
+    gs = G.GraspSynthesizer(obj.mesh, df, 1.0, rest_height=obj.rest_height,
+                            grasp_hint=obj.grasp_hint, handles=obj.handles, large=obj.large)
+    return obj, df, gs
+
+
+@pytest.mark.parametrize("name,side,kind", [
+    ("cylindermedium", "right", "power"), ("mug", "right", "handle"), ("cubesmall", "left", "precision"),
+])
+def test_grasp_holds_without_penetration(name, side, kind):
+    torch.set_num_threads(1)
+    obj, df, gs = _synth(name)
+    g = gs.search(side, _approach_dirs(side), np.array([0.0, 0.0, 1.0]), np.random.default_rng(1))
+    assert g is not None and g.kind == kind and g.side == side
+    hand = G._light_hand(side, 1.0)[0]
+    local = hand.to_local(torch.as_tensor(g.hand_pose))[None].numpy()
+    v, _ = G._pose(hand, g.R[None], g.t[None], local)
+    sd = df.exact_signed_distance(v[0])  # independent of the grid used during the search
+    assert -sd.min() <= G.MAX_PENETRATION + 2e-4
+    parts = hand.part_labels
+    touching = {p for p in range(6) if sd[parts == p].min() <= CONTACT_THRESHOLD}
+    assert 1 in touching and touching & {2, 3, 4, 5}  # thumb plus at least one finger
+    assert v[0][:, 1].min() > -obj.rest_height  # above the table top
+    assert bool(hand.within_limits(torch.as_tensor(g.hand_pose)))
+    np.testing.assert_allclose(g.R @ g.R.T, np.eye(3), atol=1e-9)
+
+
+def test_grasp_is_deterministic_for_a_seed():
+    _, _, gs = _synth("apple")
+    a = gs.search("right", _approach_dirs("right"), np.array([0.0, 0.0, 1.0]), np.random.default_rng(5))
+    b = gs.search("right", _approach_dirs("right"), np.array([0.0, 0.0, 1.0]), np.random.default_rng(5))
+    np.testing.assert_array_equal(a.hand_pose, b.hand_pose)
+    np.testing.assert_array_equal(a.t, b.t)
+
+
+def test_hand_rotation_maps_fingers_and_palm():
+    f, n = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    for side, fh in (("right", [-1.0, 0, 0]), ("left", [1.0, 0, 0])):
+        R = G._hand_rotation(side, f, n)
+        np.testing.assert_allclose(R @ np.array(fh), f, atol=1e-12)
+        np.testing.assert_allclose(R @ np.array([0.0, -1.0, 0.0]), n, atol=1e-12)
+        assert np.isclose(np.linalg.det(R), 1.0)
