@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import GripBenchError, InputError, MissingModelError
+from ..data.posing import hand_poser, load_object_mesh_of
+from ..errors import InputError
 
 CHUNK = 256  # frames posed per batch (bounds memory on long sequences)
 
@@ -47,97 +48,6 @@ def parse_frames(spec: str | None, n_frames: int) -> range:
     return frames
 
 
-def _load_object(seq) -> tuple[np.ndarray, np.ndarray]:
-    """Object template vertices (N, 3) and faces (F, 3) from the sequence's mesh file."""
-    import trimesh
-
-    from ..data.grab_io import resolve_object_mesh
-
-    path = resolve_object_mesh(seq)
-    try:
-        mesh = trimesh.load(path, force="mesh", process=False)
-    except Exception as e:  # trimesh raises many types for malformed files
-        raise InputError(f"not a readable mesh ({type(e).__name__}: {e})", path) from e
-    if len(mesh.vertices) == 0 or len(mesh.faces) == 0:
-        raise InputError("mesh has no faces", path)
-    return np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
-
-
-class _ProceduralPoser:
-    """Poses one procedural hand per side (watertight by construction)."""
-
-    def __init__(self, seq):
-        try:
-            from ..bodies import ProceduralHand
-        except ImportError:
-            try:
-                from ..bodies.hand import ProceduralHand
-            except ImportError as e:
-                raise GripBenchError(f"the procedural hand is unavailable ({e})",
-                                     "grip_bench.bodies") from e
-        scale = seq.hand_scale or 1.0
-        self.hands = {side: ProceduralHand(side, scale) for side in ("right", "left")}
-
-    def faces(self, side: str) -> np.ndarray:
-        return np.asarray(self.hands[side].faces, np.int64)
-
-    def vertices(self, side: str, p: dict, sl: slice) -> np.ndarray:
-        import torch
-
-        hand = self.hands[side]
-        dtype = getattr(hand, "template_vertices", torch.zeros(0)).dtype
-        t = lambda k: torch.as_tensor(np.asarray(p[k][sl]), dtype=dtype)  # noqa: E731
-        with torch.no_grad():
-            verts, _ = hand(t("global_orient"), t("hand_pose").reshape(-1, 15, 3), t("transl"))
-        return verts.detach().cpu().numpy().astype(float)
-
-
-class _MANOPoser:
-    """Poses MANO hands through the smplx backend (sealed, hence watertight, meshes).
-
-    A :class:`Sequence` holds absolute full poses, so the layers use 45 components and
-    ``flat_hand_mean=True``; GRAB's ``transl`` semantics are kept (``wrist_origin=False``).
-    The subject's personal hand template (``rhand_vtemp``) is used when the file names one.
-    """
-
-    def __init__(self, seq, model_path):
-        if not model_path:
-            raise MissingModelError("this sequence uses SMPL-X/MANO hands: pass --model-path",
-                                    f"{seq.source}: body_model")
-        from ..bodies.smplx_backend import MANOHand
-
-        self.hands = {side: MANOHand(side, model_path, n_comps=45, flat_hand_mean=True,
-                                     v_template=_vtemp(seq, side))
-                      for side in ("right", "left")}
-
-    def faces(self, side: str) -> np.ndarray:
-        return self.hands[side].faces.cpu().numpy()
-
-    def vertices(self, side: str, p: dict, sl: slice) -> np.ndarray:
-        import torch
-
-        with torch.no_grad():
-            verts, _ = self.hands[side](p["global_orient"][sl], p["hand_pose"][sl], p["transl"][sl])
-        return verts.cpu().numpy().astype(float)
-
-
-def _vtemp(seq, side: str) -> np.ndarray | None:
-    """The subject's hand template vertices (V, 3) named by the file, or None (mean shape)."""
-    import trimesh
-
-    from ..data.grab_io import data_root_of
-
-    rel = getattr(seq, f"{side[0]}hand_vtemp")
-    if not rel:
-        return None
-    root = data_root_of(seq.source) if seq.source else None
-    path = Path(rel) if Path(rel).is_absolute() or root is None else root / rel
-    if not path.is_file():
-        raise InputError(f"subject hand template not found: {path}",
-                         f"{seq.source}: {side[0]}hand.vtemp")
-    return np.asarray(trimesh.load(path, force="mesh", process=False).vertices, np.float32)
-
-
 def _write_ply(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
     import trimesh
 
@@ -150,8 +60,8 @@ def export_sequence(seq, out_dir: Path, frames: range, model_path=None) -> int:
     Everything that can fail on input (mesh, hand models) is checked before ``out_dir``
     is created.
     """
-    obj_v, obj_f = _load_object(seq)
-    poser = _ProceduralPoser(seq) if seq.body_model == "procedural" else _MANOPoser(seq, model_path)
+    obj_v, obj_f = load_object_mesh_of(seq)
+    poser = hand_poser(seq, model_path)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = 0
     for start in range(frames.start, frames.stop, CHUNK):

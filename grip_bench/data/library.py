@@ -1,0 +1,47 @@
+"""Per-object caches shared by evaluation, sensors and methods: canonical mesh and distance field.
+
+Distance fields cost ~0.1-2 s to build, so every consumer of a dataset goes through one
+:class:`ObjectLibrary` and each object's field is built once per process.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .grab_io import object_mesh_path
+
+
+class ObjectLibrary:
+    """Canonical object meshes and distance fields of one dataset directory."""
+
+    def __init__(self, data_dir: str | Path):
+        self.data_dir = Path(data_dir)
+        self.mesh = lru_cache(maxsize=None)(self._load_mesh)
+        self.field = lru_cache(maxsize=64)(self._build_field)
+
+    def _load_mesh(self, name: str):
+        """Watertight canonical mesh of ``name`` (trimesh, metres, object frame)."""
+        from ..geometry.meshes import load_object_mesh
+
+        path = object_mesh_path(self.data_dir, name)
+        if not path.is_file():
+            raise InputError(f"object mesh not found: {path}", f"object '{name}'")
+        return load_object_mesh(path)
+
+    def _build_field(self, name: str):
+        from ..geometry.distance import DistanceField
+
+        return DistanceField(self.mesh(name))
+
+    def world_to_object(self, seq, points: np.ndarray) -> np.ndarray:
+        """World points (T, N, 3) -> the object's frame at each frame (T, N, 3).
+
+        GRAB's row-vector convention ``world = local @ R + t`` inverts to ``(world - t) @ R.T``.
+        """
+        R = seq.object_rotations()  # (T, 3, 3), row-vector convention
+        t = np.asarray(seq.object["transl"], float)
+        return np.einsum("tnj,tij->tni", points - t[:, None], R)
