@@ -216,6 +216,25 @@ class Sequence:
         """Deep copy (arrays included)."""
         return copy.deepcopy(self)
 
+    def with_hands(self, **sides: dict) -> Sequence:
+        """Copy with new hands: ``with_hands(right={"hand_pose": (T,15,3)|(T,45), ...}, left=...)``.
+
+        Any of ``global_orient`` (T, 3), ``hand_pose``, ``transl`` (T, 3) may be given per
+        side; the rest is kept. The body's hand poses and both ``fullpose`` arrays follow,
+        so the file stays self-consistent for every reader.
+        """
+        out = self.copy()
+        for side, new in sides.items():
+            if side not in ("right", "left"):
+                raise InputError(f"expected 'right' or 'left', got {side!r}", "side")
+            part = out.rhand if side == "right" else out.lhand
+            merged = {k: np.asarray(new.get(k, part[k]), dtype=part[k].dtype)
+                      for k in ("global_orient", "hand_pose", "transl")}
+            part.update(make_hand_params(merged["global_orient"], merged["hand_pose"], merged["transl"]))
+            out.body[f"{side}_hand_pose"] = part["hand_pose"].astype(out.body["body_pose"].dtype)
+        out.body["fullpose"] = body_fullpose(out.body)
+        return out
+
     # --- validation -----------------------------------------------------------
     def validate(self, source: str | Path | None = None) -> Sequence:
         """Check types, shapes, frame counts, finiteness and units; return ``self``.

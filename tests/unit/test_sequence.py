@@ -126,3 +126,19 @@ def test_body_fullpose_layout_is_smplx_order():
 def test_bad_side():
     with pytest.raises(InputError, match="side"):
         make_sequence(T=2).hand_params("middle")
+
+
+def test_with_hands_replaces_poses_and_keeps_fullposes_consistent():
+    from grip_bench.data.sequence import body_fullpose, hand_fullpose
+    from tests.grab_fixtures import make_sequence
+
+    seq = make_sequence(T=6)
+    pose = np.full((6, 15, 3), 0.1, dtype=seq.rhand["hand_pose"].dtype)
+    out = seq.with_hands(right={"hand_pose": pose})
+    np.testing.assert_array_equal(out.rhand["hand_pose"], pose.reshape(6, 45))
+    np.testing.assert_array_equal(out.body["right_hand_pose"], pose.reshape(6, 45))
+    np.testing.assert_array_equal(out.rhand["fullpose"], hand_fullpose(out.rhand["global_orient"], out.rhand["hand_pose"]))
+    np.testing.assert_array_equal(out.body["fullpose"], body_fullpose(out.body))
+    np.testing.assert_array_equal(out.lhand["hand_pose"], seq.lhand["hand_pose"])  # other side untouched
+    assert not np.array_equal(seq.rhand["hand_pose"], out.rhand["hand_pose"])  # input not modified
+    out.validate()
