@@ -85,7 +85,7 @@ class MethodSpec:
 METHODS: Registry[MethodSpec] = Registry("method")
 
 # Modules whose import registers methods (added as the methods are implemented).
-METHOD_MODULES: list[str] = []
+METHOD_MODULES: list[str] = ["grip_baselines.reference"]
 
 
 def register_method(spec: MethodSpec) -> MethodSpec:

@@ -1,0 +1,66 @@
+"""Reference rows: ground truth, the perturbed input, flat hands and the relaxed mean hand.
+
+They bracket every table: ``gt`` is the metric sanity row (its pose errors are 0 by
+construction), ``perturbed-input`` is the "before" of Table 3, ``flat-input`` is what
+GRIP upgrades (the body motion with unarticulated hands) and ``mean-pose`` puts GRIP's
+relaxed mean hand at the input wrists. None of them learns anything; ``train`` writes a
+small checkpoint so that ``train``/``predict`` work the same for every method.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
+from grip_bench.checkpoint import load_checkpoint, save_checkpoint
+
+SIDES = ("right", "left")
+
+
+class FixedMethod:
+    """A method without weights whose hands are a function of the input sequence."""
+
+    def __init__(self, name: str, finger_pose: str | None = None):
+        self.name = name
+        self.finger_pose = finger_pose  # None keeps the input's fingers; "flat" / "relaxed"
+
+    def train(self, data_dir: Path, out: Path, *, profile: dict, seed: int = 0,
+              device: str = "cpu", progress: bool = True) -> Path:
+        """Nothing to learn: record what the method is so ``load`` can check it."""
+        meta = {"method": self.name, "trained": False, "seed": seed}
+        return save_checkpoint(out, model_state={}, configs={}, meta=meta)
+
+    def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
+        if checkpoint is not None:
+            load_checkpoint(checkpoint, {})
+
+    def predict(self, seq, ctx: PredictContext):
+        """The input sequence, with the finger poses replaced where the method says so."""
+        if self.finger_pose is None:
+            return seq.copy()
+        return seq.with_hands(**{side: {"hand_pose": self._pose(seq, side)} for side in SIDES})
+
+    def _pose(self, seq, side: str) -> np.ndarray:
+        """Finger pose (T, 45) of ``side`` for every frame."""
+        from grip_bench.bodies.hand import ProceduralHand
+
+        T = seq.n_frames
+        if self.finger_pose == "flat":
+            return np.zeros((T, 45))
+        relaxed = ProceduralHand(side).named_pose("relaxed").double().numpy().reshape(45)
+        return np.broadcast_to(relaxed, (T, 45)).copy()
+
+
+for _name, _pose, _desc, _tables, _needs in (
+    ("gt", None, "ground truth hands (metric sanity row)", ("table4_grasp", "physics"), ()),
+    ("perturbed-input", None, "the perturbed input hands unchanged (Table 3 'before')",
+     ("table3_perturbation",), ("noisy_hands",)),
+    ("flat-input", "flat", "input wrists with flat fingers (what GRIP upgrades)", (), ("wrists",)),
+    ("mean-pose", "relaxed", "input wrists with GRIP's relaxed mean hand", (), ("wrists",)),
+):
+    register_method(MethodSpec(
+        name=_name, description=_desc, factory=FixedMethod, needs=_needs, tables=_tables,
+        trainable=False, options={"finger_pose": _pose},
+    ))
