@@ -168,3 +168,15 @@ SENSOR_FIELD_PADDING = 0.3  # m; beyond it the bounding-box distance (a lower bo
 VOXEL_CELLS = (13, 6, 13)  # voxel ambient grid (x, palm-normal, z) over the hemisphere's box: 1014 cells
 INTERACTION_DISTANCE = 0.02  # m; RNet refines frames whose hand is within this of the object
 RNET_POSE_SIGMA = 0.3  # rad; Gaussian axis-angle noise of RNet's synthetic data (GRIP Sup. 6)
+
+# --- evaluate ---
+# grip_bench.metrics.evaluate: per-sequence aggregation of the metric functions.
+EVAL_MAX_PHYSICS_FRAMES = 12  # MuJoCo tests per sequence and hand (evenly spaced grasp frames);
+# each costs ~30-50 ms (paper protocol) plus a 1 s hold, so all grasp frames would dominate the run
+EVAL_EXACT_BAND = 0.005  # m; grid distances below this (contact, CC, penetration) are recomputed
+# exactly, so every threshold decision (4.5 mm, 2 mm, inside) is made on exact distances
+EVAL_MAX_LISTED = 5  # missing / extra sequences named in a mismatch error (then a count)
+
+# --- distance far field ---------------------------------------------------------
+SDF_FAR_SPACING = 0.01  # m; coarse grid for far queries (ambient sensor points reach 0.2 m)
+SDF_FAR_PADDING = 0.3  # m; margin of the coarse grid around the object

@@ -97,3 +97,32 @@ def test_grid_error_within_2cm(benchmark, field, frames):
     benchmark.extra_info.update(
         max_error_mm_within_2cm=float(np.abs(grid - exact)[near].max() * 1e3)
     )
+
+
+@pytest.fixture(scope="module")
+def sensor_frames(mug):
+    """(N_FRAMES, PER_FRAME, 3) as the sensors see them: per hand, 1024 ambient points in a
+    0.2 m ball around a palm 1-5 cm off the surface (most fall outside the fine grid), and
+    99 proximity points within 1 cm of the surface."""
+    rng = np.random.default_rng(1)
+    n_amb, n_prox = constants.AMBIENT_N_POINTS, constants.PROXIMITY_N_VERTS
+    palms, normals = trimesh.sample.sample_surface(mug, 2 * N_FRAMES, seed=rng)
+    normals = mug.face_normals[normals]
+    palms = palms + normals * rng.uniform(0.01, 0.05, (len(palms), 1))
+    d = rng.normal(size=(2 * N_FRAMES, n_amb, 3))
+    d *= (constants.AMBIENT_RADIUS * rng.random((2 * N_FRAMES, n_amb, 1)) ** (1 / 3)
+          / np.linalg.norm(d, axis=-1, keepdims=True))
+    amb = (palms[:, None] + d).reshape(N_FRAMES, 2 * n_amb, 3)
+    s, _ = trimesh.sample.sample_surface(mug, N_FRAMES * 2 * n_prox, seed=rng)
+    prox = (s + rng.normal(scale=0.005, size=s.shape)).reshape(N_FRAMES, -1, 3)
+    return np.concatenate([amb, prox], 1)
+
+
+@pytest.mark.parametrize("far", ["exact", "coarse"])
+def test_sensor_workload_batched(benchmark, field, sensor_frames, far):
+    """The sensor workload over 1000 frames in one call; ``far`` answers points beyond the grid."""
+    pts = sensor_frames.reshape(-1, 3)
+    field.signed_distance(pts[:10], far=far)  # build the far grid outside the timing
+    benchmark.pedantic(field.signed_distance, args=(pts,), kwargs={"far": far}, rounds=3, iterations=1)
+    outside = field._outside_grid(pts)
+    benchmark.extra_info.update(frames=N_FRAMES, outside_fine_grid_share=float(outside.mean()))
