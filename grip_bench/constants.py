@@ -180,3 +180,20 @@ EVAL_MAX_LISTED = 5  # missing / extra sequences named in a mismatch error (then
 # --- distance far field ---------------------------------------------------------
 SDF_FAR_SPACING = 0.01  # m; coarse grid for far queries (ambient sensor points reach 0.2 m)
 SDF_FAR_PADDING = 0.3  # m; margin of the coarse grid around the object
+
+# --- run ---
+# grip-bench run (grip_bench.bench.runner); profiles' [run] sections override these.
+RUN_DEFAULT_OUT = "runs"  # OUT defaults to runs/<profile>
+RUN_PERTURBATIONS = ("T0.01", "T0.02", "R0.3", "R0.5")  # GRAB-T (m) and GRAB-R (rad), TOCH
+RUNTIME_SEQUENCES = 2  # test sequences timed per method (after one untimed warm-up call)
+RUNTIME_REPEATS = 3  # timed passes per method and mode (rows of runtime.csv)
+RUN_FIGURE_METHODS = ("grip",)  # methods drawn beside ground truth in contact heatmaps
+
+# --- baselines methods ---
+# grabnet-smplx: BPS basis centre in the right wrist frame, where the fingers reach
+# (half a hand towards the fingers, -x, and a little to the palm side, -y).
+GRABNET_SMPLX_BPS_CENTRE = (-0.07, -0.03, 0.0)
+# toch: frames whose input hand comes this close to the object are refined (m); wider than
+# GRIP's 2 cm because GRAB-T moves hands by up to a few centimetres.
+TOCH_INTERACTION_DISTANCE = 0.03
+TOCH_HIT_THRESHOLD = 0.5  # denoised hit probability above which a correspondence is fitted

@@ -85,7 +85,9 @@ class MethodSpec:
 METHODS: Registry[MethodSpec] = Registry("method")
 
 # Modules whose import registers methods (added as the methods are implemented).
-METHOD_MODULES: list[str] = ["grip_baselines.reference"]
+METHOD_MODULES: list[str] = [
+    "grip_baselines.reference", "grip_bench.grip.method",
+]
 
 
 def register_method(spec: MethodSpec) -> MethodSpec:

@@ -1,0 +1,130 @@
+"""``grip-bench predict``: run a trained method over sequences and write GRAB-layout files."""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import shutil
+import time
+from pathlib import Path
+
+DESCRIPTION = """\
+Run METHOD (loaded from --checkpoint) on one SEQ.npz or on every sequence of a data
+folder (optionally one --split) and write OUT/grab/s<k>/<name>.npz under the same
+relative names, with the method's hands. The object meshes and splits.json are copied
+so that `grip-bench evaluate` and `export` accept OUT; OUT/manifest.json records the
+method, checkpoint hash, options and wall time per sequence.
+
+--online streams frame by frame (each output frame uses only frames up to it; no
+future-cue latency, lower accuracy). --no-anet keeps the input wrists. --refine refines
+the input (perturbed) hands instead of generating them (GRIP Tab. 3)."""
+
+
+def register(sub) -> None:
+    p = sub.add_parser("predict", help="run a trained method and write its sequences",
+                       description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  grip-bench predict --method grip --checkpoint ckpt/grip.pt "
+                              "--input synth/ --split test --out preds/grip")
+    p.add_argument("--method", required=True, help="method name (see `grip-bench ls methods`)")
+    p.add_argument("--checkpoint", type=Path, default=None, metavar="CKPT",
+                   help="checkpoint written by `grip-bench train`")
+    p.add_argument("--input", type=Path, required=True, metavar="SEQ.npz|DIR")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output data folder")
+    p.add_argument("--split", default="all", help="with a folder input: train, val, test or all")
+    p.add_argument("--future-frames", type=int, default=None, metavar="N",
+                   help="future-cue frames (must match the checkpoint; see grip-futureN)")
+    p.add_argument("--no-anet", action="store_true", help="use the input wrists (no arm denoising)")
+    p.add_argument("--online", action="store_true", help="frame-by-frame streaming mode")
+    p.add_argument("--refine", action="store_true", help="refine the input hands (perturbed sets)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    p.set_defaults(func=run)
+
+
+def _inputs(path: Path, split: str) -> tuple[Path, list[Path]]:
+    """(data root, sequence files) of a file or folder input."""
+    from ..data.grab_io import data_root_of, list_sequences
+    from ..data.splits import sequences_in_split
+    from ..errors import InputError
+
+    if path.is_file():
+        root = data_root_of(path)
+        if root is None:
+            raise InputError("a single sequence must sit in a data folder (DATA/grab/s<k>/NAME.npz)", path)
+        return root, [path]
+    if not path.is_dir():
+        raise InputError("no such file or folder", path)
+    files = list_sequences(path) if split == "all" else sequences_in_split(path, split)
+    if not files:
+        raise InputError(f"no sequences (split {split!r})", path)
+    return path, files
+
+
+def sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _copy_assets(root: Path, out: Path, seq) -> None:
+    """Copy the object mesh (and splits.json) so that OUT is a self-contained data folder."""
+    from ..data.grab_io import object_mesh_relpath, resolve_object_mesh
+
+    rel = seq.object_mesh if seq.object_mesh and not Path(seq.object_mesh).is_absolute() \
+        else object_mesh_relpath(seq.obj_name)
+    dst = out / rel
+    if not dst.exists():
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(resolve_object_mesh(seq, root), dst)
+    if (root / "splits.json").is_file() and not (out / "splits.json").exists():
+        shutil.copy2(root / "splits.json", out / "splits.json")
+
+
+def run(args) -> int:
+    from ..bench.methods import PredictContext, load_all
+    from ..data.grab_io import read_grab, write_grab
+    from ..data.library import ObjectLibrary
+    from ..errors import InputError
+
+    spec = load_all().get(args.method)
+    if args.checkpoint is not None and not args.checkpoint.is_file():
+        raise InputError("checkpoint file not found", args.checkpoint)
+    root, files = _inputs(args.input, args.split)
+    if args.out.resolve() == root.resolve():
+        raise InputError("output folder must differ from the input folder", args.out)
+    method = spec.build()
+    method.load(args.checkpoint, args.device)
+    ctx = PredictContext(library=ObjectLibrary(root), device=args.device, seed=args.seed,
+                         future_frames=args.future_frames, online=args.online,
+                         extra={"no_anet": args.no_anet, "refine": args.refine})
+    seconds = {}
+    for path in files:
+        seq = read_grab(path)
+        t0 = time.perf_counter()
+        pred = method.predict(seq, ctx)
+        seconds[seq.name] = {"seconds": time.perf_counter() - t0, "frames": seq.n_frames}
+        write_grab(pred, args.out / path.relative_to(root))
+        _copy_assets(root, args.out, seq)
+    _write_manifest(args, root, seconds)
+    total = sum(s["seconds"] for s in seconds.values())
+    frames = sum(s["frames"] for s in seconds.values())
+    print(f"wrote {len(files)} sequences to {args.out} ({total:.1f} s, {1000 * total / max(frames, 1):.1f} ms/frame)")
+    return 0
+
+
+def _write_manifest(args, root: Path, seconds: dict) -> None:
+    from .. import __version__
+
+    manifest = {
+        "generator": "grip-bench predict", "suite_version": __version__, "method": args.method,
+        "checkpoint": str(args.checkpoint) if args.checkpoint else None,
+        "checkpoint_sha256": sha256(args.checkpoint) if args.checkpoint else None,
+        "input": str(root.resolve()),
+        "options": {"future_frames": args.future_frames, "no_anet": args.no_anet, "online": args.online,
+                    "refine": args.refine, "split": args.split, "seed": args.seed, "device": args.device},
+        "sequences": seconds,
+    }
+    (args.out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")

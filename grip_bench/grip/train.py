@@ -1,0 +1,458 @@
+"""Training GRIP: ANet, then CNet, then RNet (on CNet's outputs and perturbed GT hands).
+
+Each network: Adam, ReduceLROnPlateau on the validation loss, early stopping with the
+best weights kept, tqdm progress with the loss terms. Deterministic on CPU for a seed:
+the frame order of every epoch and the torch RNG (dropout) are re-seeded from
+``(seed, stage, epoch)``, so a run resumed from its partial checkpoint (written after
+every epoch, ``<out>.partial``) ends with the same weights as an uninterrupted one.
+
+Hyper-parameters come from a profile's ``[grip]`` section (``grip_bench/profiles``).
+Loss weights are :class:`~grip_bench.grip.losses.LossConfig`'s (all 1, latent 1e-3).
+
+ANet is trained residually: it predicts the 6D correction of the noisy arm frames
+(the target of frame t, given clean, is 0) and its head starts at zero, so an undertrained
+ANet leaves the arms as they are instead of replacing them with a blurred mean.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import constants as C
+from ..checkpoint import load_checkpoint, save_checkpoint
+from ..errors import InputError
+from ..geometry.rotations import rotation_6d_to_axis_angle, rotation_6d_to_matrix
+from .anet import ANetConfig
+from .cnet import CNetConfig, future_cue_dim
+from .data import FEATURE_VERSION, FrameSet, build_split, hand_model, recompute_proximity
+from .losses import LossConfig, anet_loss, cnet_loss, rnet_loss
+from .rnet import RNetConfig
+
+STAGES = ("anet", "cnet", "rnet")
+CONFIG_CLASSES = {"anet": ANetConfig, "cnet": CNetConfig, "rnet": RNetConfig}
+VOXEL_DIM = int(np.prod(C.VOXEL_CELLS))
+FEATURE_CACHE_ENV = "GRIP_BENCH_FEATURE_CACHE"  # folder for the per-split feature .npz files
+
+
+@dataclass(frozen=True)
+class Variant:
+    """The training switches of one GRIP method (GRIP Tab. 2 and Tab. 4-right).
+
+    ``ambient``: "distance" (GRIP), "voxel" or "none"; ``proximity``: the stage-one
+    proximity input. An ablated sensor is fed as a constant 0 (one input per hand for
+    ambient; the 99 proximity inputs stay so that CNet still predicts proximity as a target).
+    """
+
+    ambient: str = "distance"
+    proximity: bool = True
+    consistency: str = "latent"
+    future_frames: int = C.FUTURE_FRAMES
+
+    def train_key(self) -> str:
+        """Identical keys train identical networks (methods may share a checkpoint)."""
+        return (f"ambient={self.ambient},proximity={int(self.proximity)},"
+                f"consistency={self.consistency},future={self.future_frames}")
+
+    @property
+    def ambient_dim(self) -> int:
+        return {"distance": C.AMBIENT_N_POINTS, "voxel": VOXEL_DIM, "none": 1}[self.ambient]
+
+
+def build_configs(hp: dict, variant: Variant) -> dict:
+    """Network configs ``{anet, cnet, rnet}`` from a profile's ``[grip]`` section."""
+    drop = float(hp["dropout"])
+    cnet = CNetConfig(ambient_dim=variant.ambient_dim, future_dim=future_cue_dim(variant.future_frames),
+                      hidden=hp["hidden"], width=hp["width"], latent=hp["latent"], dropout=drop,
+                      consistency=variant.consistency)
+    anet = ANetConfig(hidden=hp["anet_hidden"], width=hp["anet_width"], latent=hp["latent"], dropout=drop)
+    rnet = RNetConfig(hidden=hp["rnet_hidden"], width=hp["rnet_width"], dropout=drop)
+    return {"anet": anet, "cnet": cnet, "rnet": rnet}
+
+
+# --- batches ---------------------------------------------------------------------------
+def _t(a) -> torch.Tensor:
+    return torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)
+
+
+def sensor_inputs(ambient: np.ndarray, proximity: np.ndarray, variant: Variant):
+    """Apply the variant's ablation to stage-one sensors ``(..., 2, A)``, ``(..., 2, 99)``."""
+    if variant.ambient == "none":
+        ambient = np.zeros((*ambient.shape[:-1], 1), np.float32)
+    if not variant.proximity:
+        proximity = np.zeros_like(proximity)
+    return ambient, proximity
+
+
+def cnet_batch(fs: FrameSet, idx: np.ndarray, variant: Variant) -> dict:
+    """CNet inputs and targets for pairs (t, t+1) starting at frames ``idx``."""
+    j = fs.next_index(idx)
+    pair = np.stack([idx, j], 1)  # (B, 2)
+    amb = fs.voxel if variant.ambient == "voxel" else fs.ambient
+    amb, prox = sensor_inputs(amb[pair].astype(np.float32), fs.proximity[pair], variant)
+    return {
+        "body": _t(fs.body[pair]), "ambient": _t(amb), "proximity": _t(prox),
+        "future": _t(fs.future(idx, variant.future_frames)),
+        "poses_t": _t(fs.gt_poses[idx]), "poses_t1": _t(fs.gt_poses[j]),
+        "proximity_t": _t(fs.gt_proximity[idx]), "proximity_t1": _t(fs.gt_proximity[j]),
+    }
+
+
+def anet_batch(fs: FrameSet, idx: np.ndarray, cfg: ANetConfig) -> dict:
+    """ANet inputs (GT arms at t, noisy arms at t+1..t+5) and residual targets (B, F, 4, 6)."""
+    fut = np.stack([fs.next_index(idx, k) for k in range(1, cfg.n_future + 1)], 1)
+    frames = np.stack([fs.next_index(idx, k) for k in range(cfg.n_frames)], 1)
+    noisy = fs.noisy_arms[frames]
+    noisy[:, 0] = fs.arms[idx]  # frame t is given clean: its correction is 0
+    return {"current": _t(fs.arms[idx]), "noisy_future": _t(fs.noisy_arms[fut]),
+            "target": _t(fs.arms[frames] - noisy)}
+
+
+class VertexFn:
+    """Differentiable hand vertices for the vertex L1: ``(..., 2, 15, 6) -> (..., 2, K, 3)``.
+
+    K = ``loss_vertices`` vertices at a fixed stride over the mesh (0: all), in the hand frame.
+    """
+
+    def __init__(self, n_vertices: int):
+        self.model = hand_model(1.0)
+        V = self.model.hands[0].num_vertices
+        self.ids = None if n_vertices in (0, V) else np.linspace(0, V - 1, n_vertices).round().astype(int)
+
+    def __call__(self, poses: torch.Tensor) -> torch.Tensor:
+        lead = poses.shape[:-3]
+        rot = rotation_6d_to_matrix(poses.reshape(-1, 2, 15, 6))
+        v = self.model.vertices(rot, self.ids)
+        return v.reshape(*lead, *v.shape[1:])
+
+
+# --- RNet data ------------------------------------------------------------------------------
+@torch.no_grad()
+def cnet_predict(cnet, fs: FrameSet, idx: np.ndarray, variant: Variant, batch: int = 1024) -> np.ndarray:
+    """CNet's poses at frames ``idx`` ``(N, 2, 15, 6)`` (eval mode)."""
+    cnet.eval()
+    out = []
+    for s in range(0, len(idx), batch):
+        b = cnet_batch(fs, idx[s:s + batch], variant)
+        out.append(cnet(b["body"], b["ambient"], b["proximity"], b["future"] if variant.future_frames else None)
+                   .poses_t.numpy())
+    return np.concatenate(out) if out else np.zeros((0, 2, 15, 6), np.float32)
+
+
+def perturb_poses(poses_6d: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """GT poses ``(N, 2, 15, 6)`` with ``N(0, sigma^2)`` added to every axis-angle component."""
+    from .data import aa_to_6d
+
+    aa = rotation_6d_to_axis_angle(poses_6d.astype(np.float64))
+    return aa_to_6d(aa + rng.normal(0.0, sigma, size=aa.shape))
+
+
+def rnet_data(cnet, fs: FrameSet, library, variant: Variant, hp: dict, rng) -> dict:
+    """RNet samples on interaction frames: CNet outputs plus perturbed GT hands (GRIP Sup. 6).
+
+    Returns arrays ``poses (N,2,15,6)``, ``proximity (N,2,99)`` recomputed on those
+    hands, ``mask (N,2)`` (GT hand within ``interaction_distance``), ``target (N,2,15,6)``.
+    """
+    near = fs.gt_min_dist < hp["interaction_distance"]  # (N, 2)
+    idx = np.flatnonzero(near.any(axis=1) & (np.arange(len(fs)) + 1 < fs.end))
+    cap = hp["max_train_frames"]
+    if cap and len(idx) > cap:
+        idx = np.sort(rng.choice(idx, cap, replace=False))
+    poses = cnet_predict(cnet, fs, idx, variant)
+    noisy = rng.random(len(idx)) < hp["rnet_noisy_share"]
+    if noisy.any():
+        poses[noisy] = perturb_poses(fs.gt_poses[idx[noisy]], hp["rnet_noise"], rng)
+    return {"poses": poses, "proximity": recompute_proximity(fs, idx, poses, library),
+            "mask": near[idx], "target": fs.gt_poses[idx]}
+
+
+# --- the generic loop ---------------------------------------------------------------------
+@dataclass
+class Stage:
+    """One network's training problem: its batches and its loss."""
+
+    name: str
+    model: torch.nn.Module
+    n_train: int
+    n_val: int
+    batch: callable  # (split "train"|"val", idx) -> dict of tensors
+    loss: callable  # (model, batch) -> (total, {term: tensor})
+
+
+def _seed(*parts: int) -> int:
+    return int(np.random.SeedSequence(list(parts)).generate_state(1)[0])
+
+
+def _evaluate(stage: Stage, bs: int) -> float:
+    stage.model.eval()
+    total, n = 0.0, 0
+    with torch.no_grad():
+        for s in range(0, stage.n_val, bs):
+            idx = np.arange(s, min(s + bs, stage.n_val))
+            loss, _ = stage.loss(stage.model, stage.batch("val", idx))
+            total, n = total + float(loss) * len(idx), n + len(idx)
+    return total / max(n, 1)
+
+
+def _epoch(stage: Stage, opt, bs: int, seed: int, epoch: int, progress: bool) -> float:
+    """One pass over the train samples in a seeded order; returns the mean loss."""
+    stage.model.train()
+    torch.manual_seed(_seed(seed, STAGES.index(stage.name), epoch, 1))
+    order = np.random.default_rng(_seed(seed, STAGES.index(stage.name), epoch)).permutation(stage.n_train)
+    # drop a last batch of 1: BatchNorm cannot normalise a single sample
+    starts = [s for s in range(0, stage.n_train, bs) if min(bs, stage.n_train - s) > 1]
+    bar = _bar(starts, f"{stage.name} epoch {epoch + 1}", progress)
+    total = 0.0
+    for s in bar:
+        loss, terms = stage.loss(stage.model, stage.batch("train", order[s:s + bs]))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        total += float(loss.detach())
+        if progress:
+            bar.set_postfix({k: f"{float(v.detach()):.4f}" for k, v in terms.items()})
+    return total / max(len(starts), 1)
+
+
+def _bar(items, desc: str, enabled: bool):
+    if not enabled:
+        return items
+    from tqdm import tqdm
+
+    return tqdm(items, desc=desc, unit="batch", leave=False)
+
+
+@dataclass
+class StageState:
+    """Resumable state of one network's training (stored in the partial checkpoint)."""
+
+    epoch: int = 0  # epochs completed
+    best_loss: float = float("inf")
+    best_state: dict | None = None
+    bad_epochs: int = 0
+    optimizer: dict | None = None
+    scheduler: dict | None = None
+    train_curve: list | None = None
+    val_curve: list | None = None
+    done: bool = False
+
+
+def fit(stage: Stage, hp: dict, st: StageState, seed: int, epochs: int, save, progress: bool) -> StageState:
+    """Train ``stage.model`` from state ``st``; ``save(st)`` after each epoch. Returns the final state."""
+    opt = torch.optim.Adam(stage.model.parameters(), lr=hp["lr"], weight_decay=hp["weight_decay"])
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=hp["lr_factor"], patience=hp["lr_patience"])
+    if st.optimizer is not None:
+        opt.load_state_dict(st.optimizer)
+        sched.load_state_dict(st.scheduler)
+    st.train_curve, st.val_curve = st.train_curve or [], st.val_curve or []
+    while not st.done and st.epoch < epochs:
+        train_loss = _epoch(stage, opt, hp["batch_size"], seed, st.epoch, progress)
+        val_loss = _evaluate(stage, hp["batch_size"])
+        sched.step(val_loss)
+        st.train_curve.append(train_loss)
+        st.val_curve.append(val_loss)
+        if val_loss < st.best_loss:
+            st.best_loss, st.bad_epochs = val_loss, 0
+            st.best_state = copy.deepcopy(stage.model.state_dict())
+        else:
+            st.bad_epochs += 1
+        st.epoch += 1
+        st.done = st.bad_epochs >= hp["patience"] or st.epoch >= epochs
+        st.optimizer, st.scheduler = opt.state_dict(), sched.state_dict()
+        if progress:
+            print(f"{stage.name} epoch {st.epoch}: train {train_loss:.5f} val {val_loss:.5f}"
+                  f" lr {opt.param_groups[0]['lr']:.2e}", flush=True)
+        save(st)
+    stage.model.load_state_dict(st.best_state)
+    return st
+
+
+# --- stages --------------------------------------------------------------------------------
+def _subset(n: int, cap: int, rng) -> np.ndarray:
+    idx = np.arange(n)
+    return np.sort(rng.choice(idx, cap, replace=False)) if cap and n > cap else idx
+
+
+def _anet_stage(model, data: dict, hp) -> Stage:
+    cfg, lc = model.cfg, LossConfig()
+    idx = {s: _subset(len(data[s]), hp[f"max_{s}_frames"], np.random.default_rng(hp["seed"])) for s in ("train", "val")}
+
+    def batch(split, i):
+        return anet_batch(data[split], idx[split][i], cfg)
+
+    def loss(m, b):
+        return anet_loss(m(b["current"], b["noisy_future"]), b["target"], lc, cfg.consistency)
+
+    return Stage("anet", model, len(idx["train"]), len(idx["val"]), batch, loss)
+
+
+def _cnet_stage(model, data: dict, hp, variant: Variant) -> Stage:
+    lc, vert = LossConfig(), VertexFn(hp["loss_vertices"])
+    rng = np.random.default_rng(hp["seed"] + 1)
+    idx = {s: _subset_of(data[s].pair_index(), hp[f"max_{s}_frames"], rng) for s in ("train", "val")}
+
+    def batch(split, i):
+        return cnet_batch(data[split], idx[split][i], variant)
+
+    def loss(m, b):
+        out = m(b["body"], b["ambient"], b["proximity"], b["future"] if variant.future_frames else None)
+        return cnet_loss(out, b, lc, variant.consistency, vert)
+
+    return Stage("cnet", model, len(idx["train"]), len(idx["val"]), batch, loss)
+
+
+def _subset_of(idx: np.ndarray, cap: int, rng) -> np.ndarray:
+    return idx[_subset(len(idx), cap, rng)]
+
+
+def _rnet_stage(model, rdata: dict, hp) -> Stage:
+    lc, vert = LossConfig(), VertexFn(hp["loss_vertices"])
+
+    def batch(split, i):
+        d = rdata[split]
+        return {k: torch.as_tensor(d[k][i]) if k == "mask" else _t(d[k][i]) for k in d}
+
+    def loss(m, b):
+        refined = m(b["poses"], b["proximity"], mask=b["mask"])
+        return rnet_loss(refined, b["target"], lc, vert)
+
+    return Stage("rnet", model, len(rdata["train"]["poses"]), len(rdata["val"]["poses"]), batch, loss)
+
+
+# --- orchestration ------------------------------------------------------------------------------
+@contextlib.contextmanager
+def deterministic(threads: int | None = None):
+    """Deterministic torch algorithms for the block (restored afterwards)."""
+    before = torch.are_deterministic_algorithms_enabled()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(before)
+
+
+def _fingerprint(hp: dict, variant: Variant, data_hash: str, seed: int) -> dict:
+    return {"train_key": variant.train_key(), "data_hash": data_hash, "seed": int(seed),
+            "grip_profile": {k: hp[k] for k in sorted(hp)}, "feature_version": FEATURE_VERSION}
+
+
+def _load_partial(path: Path, fp: dict) -> tuple[dict, dict]:
+    """(finished/current network states, stage states) of a partial checkpoint, or empty."""
+    if not path.is_file():
+        return {}, {}
+    import torch as _torch
+
+    payload = _torch.load(path, map_location="cpu", weights_only=True)
+    meta = payload.get("meta", {})
+    if meta.get("fingerprint") != fp:
+        raise InputError("a partial checkpoint of a different training (data, profile, seed or "
+                         "variant) is in the way; delete it to start over", path)
+    states = {k: StageState(**v) for k, v in meta.get("stages", {}).items()}
+    return payload["models"], states
+
+
+def train_grip(data_dir, out, *, profile: dict, variant: Variant = Variant(), seed: int | None = None,
+               device: str = "cpu", progress: bool = True) -> Path:
+    """Train ANet, CNet and RNet on ``data_dir`` (train split; val for early stopping).
+
+    Writes the checkpoint ``out`` (all three networks' configs and weights, data hash,
+    versions, training curves). Resumes from ``<out>.partial`` when present; an existing
+    ``out`` of the same data, profile, seed and variant is kept as it is. Returns ``out``.
+    """
+    from ..data.grab_io import dataset_hash
+    from ..data.library import ObjectLibrary
+
+    if device != "cpu":
+        raise InputError("GRIP training runs on the CPU in this suite (use --device cpu)", "device")
+    out, data_dir = Path(out), Path(data_dir)
+    hp = dict(profile["grip"])
+    seed = hp["seed"] if seed is None else int(seed)
+    hp["seed"] = seed
+    data_hash = dataset_hash(data_dir)
+    fp = _fingerprint(hp, variant, data_hash, seed)
+    if _already_trained(out, fp):
+        return out
+    t0 = time.perf_counter()
+    # features are shared by every variant trained on the same data (keyed by its hash)
+    cache = Path(os.environ.get(FEATURE_CACHE_ENV) or out.parent / ".grip-cache")
+    data = {s: build_split(data_dir, s, cache_dir=cache, voxel=variant.ambient == "voxel", seed=seed,
+                           data_hash=data_hash, progress=progress) for s in ("train", "val")}
+    t_data = time.perf_counter() - t0
+    configs = build_configs(hp, variant)
+    partial = out.with_name(out.name + ".partial")
+    models_done, states = _load_partial(partial, fp)
+    with deterministic():
+        nets = _build_nets(configs, seed, models_done)
+        for name in STAGES:
+            st = states.get(name, StageState())
+            if st.done:
+                continue
+            stage = _make_stage(name, nets, data, hp, variant, ObjectLibrary(data_dir))
+            epochs = hp[f"epochs_{name}"]
+
+            def save(s, name=name):
+                states[name] = s
+                _save_partial(partial, nets, configs, states, fp)
+
+            states[name] = fit(stage, hp, st, seed, epochs, save, progress)
+    meta = {**fp, "curves": {k: {"train": s.train_curve, "val": s.val_curve, "epochs": s.epoch}
+                             for k, s in states.items()},
+            "variant": asdict(variant), "profile": profile.get("name", "?"),
+            "seconds": {"features": t_data, "total": time.perf_counter() - t0},
+            "n_frames": {s: len(d) for s, d in data.items()}}
+    save_checkpoint(out, model_state={k: m.state_dict() for k, m in nets.items()}, configs=configs, meta=meta)
+    partial.unlink(missing_ok=True)
+    return out
+
+
+def _already_trained(out: Path, fp: dict) -> bool:
+    """Whether ``out`` is a finished checkpoint of this very training (then it is reused)."""
+    if not out.is_file():
+        return False
+    meta = load_checkpoint(out, CONFIG_CLASSES).meta
+    return all(meta.get(k) == v for k, v in fp.items())
+
+
+def _build_nets(configs: dict, seed: int, states: dict) -> dict:
+    """Seeded fresh networks, with the weights of ``states`` where a partial run has them."""
+    nets = {}
+    for name in STAGES:
+        torch.manual_seed(_seed(seed, STAGES.index(name), 999))
+        nets[name] = configs[name].build()
+        if name == "anet":  # residual ANet starts as the identity (module docstring)
+            torch.nn.init.zeros_(nets[name].decoder.head.weight)
+            torch.nn.init.zeros_(nets[name].decoder.head.bias)
+        if name in states:
+            nets[name].load_state_dict(states[name])
+    return nets
+
+
+def _make_stage(name, nets, data, hp, variant, library) -> Stage:
+    if name == "anet":
+        return _anet_stage(nets["anet"], data, hp)
+    if name == "cnet":
+        return _cnet_stage(nets["cnet"], data, hp, variant)
+    rng = np.random.default_rng(_seed(hp["seed"], 7))
+    rdata = {s: rnet_data(nets["cnet"], data[s], library, variant, hp, rng) for s in ("train", "val")}
+    return _rnet_stage(nets["rnet"], rdata, hp)
+
+
+def _save_partial(path: Path, nets: dict, configs: dict, states: dict, fp: dict) -> None:
+    stages = {k: {**asdict(s)} for k, s in states.items()}
+    for s in stages.values():
+        s["best_loss"] = float(s["best_loss"])
+    save_checkpoint(path, model_state={k: m.state_dict() for k, m in nets.items()},
+                    configs=configs, meta={"fingerprint": fp, "stages": stages})
+
+
+def load_grip(path, device: str = "cpu") -> tuple[dict, dict]:
+    """Networks ``{anet, cnet, rnet}`` (eval mode) and the meta of a GRIP checkpoint."""
+    ck = load_checkpoint(path, CONFIG_CLASSES)
+    return {k: m.to(device) for k, m in ck.models().items()}, ck.meta

@@ -1,0 +1,84 @@
+"""Hyper-parameter profiles as data: ``smoke``, ``default``, ``paper`` (one TOML file each).
+
+A profile is a TOML file of sections (``[grip]``, later ``[data]``, ``[grabnet]``, ...).
+The loader is generic: the allowed keys of each section and their types are those of the
+``default`` profile, so a typo in any profile (or in a user's own file) is an
+:class:`InputError` naming the file and the key instead of a silently ignored value.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+from ..errors import InputError
+
+PROFILE_DIR = Path(__file__).parent
+NAMES = ("smoke", "default", "paper")
+_SCHEMA = "default"  # the profile whose keys and types every profile must follow
+
+
+def profile_path(name: str | Path) -> Path:
+    """Path of a built-in profile name or of a user's ``.toml`` file."""
+    if str(name) in NAMES:
+        return PROFILE_DIR / f"{name}.toml"
+    path = Path(name)
+    if path.suffix == ".toml" and path.is_file():
+        return path
+    raise InputError(f"unknown profile {str(name)!r} (known: {', '.join(NAMES)}, or a .toml file)",
+                     "profile")
+
+
+def _read(path: Path) -> dict:
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+        raise InputError(f"not a readable TOML profile ({e})", path) from None
+
+
+def _type_ok(value, ref) -> bool:
+    if isinstance(ref, bool) or isinstance(value, bool):
+        return type(value) is type(ref)
+    if isinstance(ref, float):
+        return isinstance(value, int | float)
+    if isinstance(ref, list):
+        return isinstance(value, list)
+    return isinstance(value, type(ref))
+
+
+def validate_profile(data: dict, schema: dict, where: Path) -> dict:
+    """Check ``data``'s sections and keys against ``schema``; return a copy with floats fixed."""
+    out = {}
+    for section, values in data.items():
+        if section not in schema:
+            raise InputError(f"unknown section [{section}] (known: {', '.join(sorted(schema))})", where)
+        if not isinstance(values, dict):
+            raise InputError(f"[{section}] should be a table of keys", where)
+        out[section] = {}
+        for key, value in values.items():
+            if key not in schema[section]:
+                raise InputError(f"unknown key {key!r} in [{section}]", f"{where}: {section}.{key}")
+            ref = schema[section][key]
+            if not _type_ok(value, ref):
+                raise InputError(f"{value!r} should be a {type(ref).__name__}", f"{where}: {section}.{key}")
+            out[section][key] = float(value) if isinstance(ref, float) else value
+    return out
+
+
+def load_profile(name: str | Path = "default") -> dict:
+    """``{section: {key: value}}`` of a profile, validated against the default profile's keys.
+
+    Sections missing from a profile are taken whole from the default profile, so later
+    issues can add sections to ``default.toml`` first.
+    """
+    schema_path = PROFILE_DIR / f"{_SCHEMA}.toml"
+    schema = _read(schema_path)
+    path = profile_path(name)
+    data = validate_profile(_read(path), schema, path)
+    for section, values in schema.items():
+        data.setdefault(section, dict(values))
+        missing = sorted(set(values) - set(data[section]))
+        if missing:
+            raise InputError(f"missing key(s) {missing} in [{section}]", path)
+    data["name"] = path.stem
+    return data

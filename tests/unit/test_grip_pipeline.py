@@ -1,0 +1,163 @@
+"""GRIP's data, training (determinism, resume), pipeline (offline / online / refine) and variants."""
+
+import numpy as np
+import pytest
+import torch
+
+from grip_bench.bench.methods import METHODS, PredictContext, load_all
+from grip_bench.data.grab_io import list_sequences, read_grab, write_grab
+from grip_bench.data.library import ObjectLibrary
+from grip_bench.errors import InputError
+from grip_bench.grip import train as TR
+from grip_bench.grip.data import build_split
+from grip_bench.grip.method import VARIANTS, GripMethod
+from grip_bench.profiles import load_profile, validate_profile
+from tests.grip_fixtures import tiny_profile, write_grip_dataset
+
+
+@pytest.fixture(autouse=True)
+def _threads():
+    torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    return write_grip_dataset(tmp_path_factory.mktemp("gripdata"), T=16)
+
+
+@pytest.fixture(scope="module")
+def trained(root, tmp_path_factory):
+    out = tmp_path_factory.mktemp("ckpt") / "grip.pt"
+    torch.set_num_threads(1)
+    return GripMethod().train(root, out, profile=tiny_profile(), progress=False)
+
+
+def _weights(path):
+    nets, _ = TR.load_grip(path)
+    return {f"{n}.{k}": v for n, m in nets.items() for k, v in m.state_dict().items()}
+
+
+def test_frame_set_shapes_and_cache(root, tmp_path):
+    fs = build_split(root, "train", cache_dir=tmp_path, seed=0)
+    n = len(fs)
+    assert fs.body.shape == (n, 154) and fs.ambient.shape == (n, 2, 1024)
+    assert fs.gt_poses.shape == (n, 2, 15, 6) and fs.arms.shape == (n, 4, 6)
+    assert (fs.gt_min_dist[:, 1] < 0.02).any() and (fs.gt_min_dist[:, 1] > 0.1).any()
+    assert not np.array_equal(fs.arms, fs.noisy_arms)
+    assert len(list(tmp_path.glob("grip-train-*.npz"))) == 1
+    again = build_split(root, "train", cache_dir=tmp_path, seed=0)  # from the cache
+    np.testing.assert_array_equal(again.ambient, fs.ambient)
+    assert fs.future(np.array([0]), 10).shape == (1, 40)
+
+
+def test_training_reduces_loss_and_is_deterministic(root, trained, tmp_path):
+    meta = TR.load_grip(trained)[1]
+    curve = meta["curves"]["cnet"]["train"]
+    assert curve[-1] < curve[0]
+    assert meta["train_key"] == TR.Variant().train_key() and len(meta["data_hash"]) == 64
+    again = GripMethod().train(root, tmp_path / "again.pt", profile=tiny_profile(), progress=False)
+    a, b = _weights(trained), _weights(again)
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_resume_continues_an_interrupted_training(root, trained, tmp_path, monkeypatch):
+    out = tmp_path / "resumed.pt"
+    real_fit = TR.fit
+
+    def interrupted(stage, hp, st, seed, epochs, save, progress):
+        if stage.name != "cnet":
+            return real_fit(stage, hp, st, seed, epochs, save, progress)
+
+        def save_then_stop(state):  # CNet's first epoch is saved, then the run dies
+            save(state)
+            raise KeyboardInterrupt
+
+        return real_fit(stage, hp, st, seed, epochs, save_then_stop, progress)
+
+    monkeypatch.setattr(TR, "fit", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        GripMethod().train(root, out, profile=tiny_profile(), progress=False)
+    assert (tmp_path / "resumed.pt.partial").is_file() and not out.exists()
+    monkeypatch.setattr(TR, "fit", real_fit)
+    GripMethod().train(root, out, profile=tiny_profile(), progress=False)
+    assert not (tmp_path / "resumed.pt.partial").exists()
+    a, b = _weights(trained), _weights(out)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_predict_writes_a_valid_grab_file(root, trained, tmp_path):
+    m = GripMethod()
+    m.load(trained)
+    seq = read_grab(list_sequences(root)[0])
+    lib = ObjectLibrary(root)
+    off = m.predict(seq, PredictContext(library=lib))
+    on = m.predict(seq, PredictContext(library=lib, online=True))
+    for pred in (off, on):
+        assert pred.rhand["hand_pose"].shape == seq.rhand["hand_pose"].shape
+        assert np.isfinite(pred.rhand["hand_pose"]).all() and np.isfinite(pred.lhand["transl"]).all()
+        np.testing.assert_array_equal(pred.body["right_hand_pose"], pred.rhand["hand_pose"])
+    back = read_grab(write_grab(off, tmp_path / "grab" / "s1" / "x.npz"))
+    np.testing.assert_allclose(back.rhand["hand_pose"], off.rhand["hand_pose"])
+    assert not np.allclose(off.rhand["hand_pose"], on.rhand["hand_pose"])  # the future cue matters
+
+
+def test_online_uses_only_past_frames(root, trained):
+    m = GripMethod()
+    m.load(trained)
+    seq = read_grab(list_sequences(root)[0])
+    lib = ObjectLibrary(root)
+    ctx = PredictContext(library=lib, online=True)
+    full, head = m.predict(seq, ctx), m.predict(seq.frames(0, 10), ctx)
+    np.testing.assert_allclose(full.rhand["hand_pose"][:10], head.rhand["hand_pose"], atol=1e-5)
+    np.testing.assert_allclose(full.lhand["transl"][:10], head.lhand["transl"], atol=1e-6)
+
+
+def test_no_anet_keeps_wrists_and_refine_keeps_far_fingers_close(root, trained):
+    m = GripMethod()
+    m.load(trained)
+    seq = read_grab(list_sequences(root)[0])
+    lib = ObjectLibrary(root)
+    pred = m.predict(seq, PredictContext(library=lib, extra={"no_anet": True}))
+    np.testing.assert_array_equal(pred.rhand["transl"], seq.rhand["transl"])
+    ref = m.predict(seq, PredictContext(library=lib, extra={"refine": True}))
+    assert np.abs(ref.rhand["hand_pose"] - seq.rhand["hand_pose"]).max() < 1.0  # refined, not replaced
+    with pytest.raises(InputError, match="future"):
+        m.predict(seq, PredictContext(library=lib, future_frames=3))
+
+
+def test_every_variant_builds_from_its_switch():
+    load_all()
+    hp = load_profile("smoke")["grip"]
+    keys = {}
+    for name in VARIANTS:
+        method = METHODS.get(name).build()
+        assert isinstance(method, GripMethod) and method.name == name
+        configs = TR.build_configs(hp, method.variant)
+        assert {k: c.build() for k, c in configs.items()}
+        keys.setdefault(method.train_key(), []).append(name)
+    shared = keys[GripMethod().train_key()]
+    assert sorted(shared) == ["grip", "grip-future10", "grip-no-rnet"]
+    assert len(keys) == len(VARIANTS) - 2
+    assert TR.build_configs(hp, METHODS.get("grip-voxel-ambient").build().variant)["cnet"].ambient_dim == 1014
+    assert TR.build_configs(hp, METHODS.get("grip-future3").build().variant)["cnet"].future_dim == 12
+
+
+def test_mismatched_checkpoint_is_refused(trained):
+    with pytest.raises(InputError, match="trained for"):
+        METHODS.get("grip-future3").build().load(trained)
+    with pytest.raises(InputError, match="not found"):
+        GripMethod().load(trained.parent / "missing.pt")
+
+
+def test_profiles_validate_keys(tmp_path):
+    for name in ("smoke", "default", "paper"):
+        assert load_profile(name)["grip"]["latent"] > 0
+    assert load_profile("paper")["grip"]["hidden"] == 2048
+    bad = tmp_path / "mine.toml"
+    bad.write_text("[grip]\nlatnet = 3\n")
+    with pytest.raises(InputError, match="latnet"):
+        load_profile(bad)
+    with pytest.raises(InputError, match="should be a int"):
+        validate_profile({"grip": {"latent": "x"}}, {"grip": {"latent": 1}}, tmp_path)
+    with pytest.raises(InputError, match="unknown profile"):
+        load_profile("huge")

@@ -1,0 +1,134 @@
+"""GRIP's hand sensors against brute-force references (analytic box distance, loops)."""
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from grip_bench import constants as C
+from grip_bench import sensors as S
+from grip_bench.bodies.hand import ProceduralHand
+from tests.grab_fixtures import BOX_EXTENTS
+from tests.grip_fixtures import write_grip_dataset
+
+
+@pytest.fixture(autouse=True)
+def _threads():
+    torch.set_num_threads(1)
+
+
+def box_sdf(p):
+    """Exact signed distance of one point to the centred fixture box (loops call this)."""
+    q = np.abs(p) - np.asarray(BOX_EXTENTS) / 2
+    return np.linalg.norm(np.maximum(q, 0.0)) + min(q.max(), 0.0)
+
+
+def brute_distance(seq, world):
+    """(T, N) unsigned distances, one point at a time, GRAB's row-vector object transform."""
+    R, t = seq.object_rotations(), np.asarray(seq.object["transl"], float)
+    out = np.zeros(world.shape[:2])
+    for f in range(world.shape[0]):
+        for n in range(world.shape[1]):
+            local = np.linalg.solve(R[f].T, world[f, n] - t[f])  # world = local @ R + t
+            out[f, n] = max(box_sdf(local), 0.0)
+    return out
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    from grip_bench.data.grab_io import list_sequences, read_grab
+    from grip_bench.data.library import ObjectLibrary
+
+    root = write_grip_dataset(tmp_path_factory.mktemp("grip"), T=6)
+    seq = read_grab(list_sequences(root)[0])
+    return ObjectLibrary(root), seq
+
+
+def test_hemisphere_geometry():
+    p = S.hemisphere()
+    r = np.linalg.norm(p, axis=1)
+    assert p.shape == (C.AMBIENT_N_POINTS, 3)
+    assert r.max() <= C.AMBIENT_RADIUS + 1e-12
+    assert (p[:, 1] <= 0).all()  # the dome is on the palm side (-y)
+    # uniform in volume: P(r < R/2) = 1/8, P(r < 0.8 R) = 0.512 (binomial 3-sigma bands)
+    assert abs((r < C.AMBIENT_RADIUS / 2).mean() - 0.125) < 0.035
+    assert abs((r < 0.8 * C.AMBIENT_RADIUS).mean() - 0.512) < 0.05
+    np.testing.assert_array_equal(p, S.hemisphere())  # deterministic
+
+
+def test_ambient_points_sit_on_the_mean_hand():
+    for side in ("right", "left"):
+        hand = ProceduralHand(side)
+        with torch.no_grad():
+            _, joints = hand(None, hand.named_pose("relaxed")[None], None)
+        centre = joints[0, 4].numpy()  # MANO middle1
+        pts = S.ambient_points(side)
+        np.testing.assert_allclose(pts - centre, S.hemisphere() * ([-1, 1, 1] if side == "left" else 1),
+                                   atol=1e-6)
+        assert ((pts - centre) @ hand.palm_normal >= 0).all()
+    np.testing.assert_allclose(S.ambient_points("left"), S.ambient_points("right") * [-1, 1, 1], atol=1e-6)
+
+
+def test_voxel_cells_cover_the_hemisphere_box():
+    v = S.voxel_points("right") - S.ambient_points("right")[0] + S.hemisphere()[0]
+    assert len(v) == np.prod(C.VOXEL_CELLS)
+    assert (np.abs(v[:, [0, 2]]) < C.AMBIENT_RADIUS).all() and (v[:, 1] < 0).all()
+
+
+def test_ambient_matches_brute_force(data):
+    lib, seq = data
+    rot, transl = S.wrist_frames(seq, "right")
+    feat = S.ambient_feature(lib, seq, rot, transl, "right")
+    pts = S.to_world(S.ambient_points("right", seq.hand_scale), rot, transl)
+    sub = np.arange(0, C.AMBIENT_N_POINTS, 16)  # 64 points x 6 frames by loops
+    ref = np.exp(-5 * brute_distance(seq, pts[:, sub]))
+    assert feat.shape == (seq.n_frames, C.AMBIENT_N_POINTS)
+    np.testing.assert_allclose(feat[:, sub], ref, atol=0.03)  # coarse far grid: see constants
+    assert np.abs(feat[:, sub] - ref).mean() < 4e-3
+
+
+def test_proximity_and_voxel_match_brute_force(data):
+    lib, seq = data
+    rot, transl = S.wrist_frames(seq, "right")
+    pts = S.to_world(S.mean_hand_points("right", seq.hand_scale), rot, transl)
+    feat, d = S.proximity_feature(lib, seq, pts)
+    ref = brute_distance(seq, pts)
+    np.testing.assert_allclose(d, ref, atol=5e-4)
+    np.testing.assert_allclose(feat, np.exp(-50 * ref), atol=0.02)
+    occ = S.ambient_feature(lib, seq, rot, transl, "right", "voxel")
+    cells = S.to_world(S.voxel_points("right", seq.hand_scale), rot, transl)
+    R, t = seq.object_rotations(), seq.object["transl"]
+    inside = [[box_sdf(np.linalg.solve(R[f].T, cells[f, n] - t[f])) < 0 for n in range(cells.shape[1])]
+              for f in range(len(cells))]
+    np.testing.assert_array_equal(occ, np.array(inside, np.float32))
+
+
+def test_stage_one_shapes_and_kinds(data):
+    lib, seq = data
+    one = S.stage_one(lib, seq)
+    assert one.ambient.shape == (seq.n_frames, 2, 1024) and one.proximity.shape == (seq.n_frames, 2, 99)
+    assert 0 <= one.ambient.min() and one.ambient.max() <= 1
+    assert S.stage_one(lib, seq, ambient="none").ambient.shape == (seq.n_frames, 2, 0)
+    with pytest.raises(Exception, match="ambient"):
+        S.stage_one(lib, seq, ambient="sdf")
+
+
+def test_future_cue_by_hand():
+    d = np.array([[0.4, 1.0], [0.3, 1.0], [0.1, 0.9], [0.0, 0.9]])  # (T=4, hands)
+    cue = S.future_cue(d, 2, fps=10.0).reshape(4, 2, 2, 2)  # (T, hand, k, [d, rate])
+    # frame 0, left hand: d[1] = 0.3 (rate -1.0 m/s), d[2] = 0.1 (rate -2.0 m/s)
+    np.testing.assert_allclose(cue[0, 0], [[0.3, -1.0], [0.1, -2.0]], atol=1e-6)
+    np.testing.assert_allclose(cue[0, 1], [[1.0, 0.0], [0.9, -1.0]], atol=1e-6)
+    # frame 3 is the last: the future repeats it (rate 0)
+    np.testing.assert_allclose(cue[3, 0], [[0.0, 0.0], [0.0, 0.0]], atol=1e-6)
+    np.testing.assert_allclose(cue[2, 0], [[0.0, -1.0], [0.0, 0.0]], atol=1e-6)
+    online = S.future_cue(d, 2, online=True).reshape(4, 2, 2, 2)
+    np.testing.assert_allclose(online[1, 0], [[0.3, 0.0], [0.3, 0.0]], atol=1e-6)
+    assert S.future_cue(d, 0).shape == (4, 0)
+
+
+def test_wrist_frames_follow_global_orient(data):
+    _, seq = data
+    rot, transl = S.wrist_frames(seq, "left")
+    np.testing.assert_allclose(rot, Rotation.from_rotvec(seq.lhand["global_orient"]).as_matrix(), atol=1e-6)
+    np.testing.assert_array_equal(transl, seq.lhand["transl"])
