@@ -181,3 +181,42 @@ def run_perturb(args: argparse.Namespace) -> int:
     print(f"wrote {info['n_sequences']} {info['protocol']} sequences (sigma {info['sigma']} "
           f"{info['sigma_unit']}, seed {info['seed']}) to {args.out}")
     return 0
+
+
+# --- synth ------------------------------------------------------------------------------
+@data_command
+def add_synth(sub) -> None:
+    p = sub.add_parser(
+        "synth", help="generate SynthGRAB, the built-in GRAB-like dataset",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Generate SynthGRAB: whole-body reach-and-grasp sequences (lift, pass, use, "
+        "off-hand pass) of a procedural body and hands with procedural household objects on a "
+        "table, written in GRAB's layout (grab/s<k>/<object>_<intent>_<n>.npz, object meshes, "
+        "splits.json with held-out objects and families, manifest.json). Prints a quality "
+        "report (grasp frames, penetration, per-finger contact frequencies beside GRAB's).",
+        epilog="profiles (time on 2 cores):\n"
+        "  smoke     ~20 sequences, about a minute\n"
+        "  default  ~300 sequences, about 10 minutes\n"
+        "  large   ~1300 sequences, about 45 minutes\n"
+        "The same --seed gives the same arrays whatever the number of workers.")
+    p.add_argument("--out", type=Path, required=True, help="output data folder (created)")
+    p.add_argument("--profile", default="smoke", choices=("smoke", "default", "large", "tiny"),
+                   help="dataset size (default smoke; 'tiny' = 3 sequences, for tests)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: all CPU cores)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or report")
+    p.set_defaults(func=run_synth)
+
+
+def run_synth(args: argparse.Namespace) -> int:
+    from ..data.synth.generate import generate
+
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"must be at least 1, got {args.workers}", "--workers")
+    if args.out.exists() and not args.out.is_dir():
+        raise InputError("exists and is not a folder", args.out)
+    manifest = generate(args.out, args.profile, args.seed, args.workers, progress=not args.quiet)
+    c = manifest["counts"]
+    print(f"wrote {c['sequences']} sequences ({c['failed']} failed) to {args.out}")
+    return 0

@@ -20,21 +20,40 @@ def min_jerk(s: np.ndarray) -> np.ndarray:
     return s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
 
 
-def min_jerk_path(p0: np.ndarray, p1: np.ndarray, n: int, via: np.ndarray | None = None) -> np.ndarray:
+def min_jerk_path(p0: np.ndarray, p1: np.ndarray, n: int, via: np.ndarray | None = None,
+                  via_at: float = 0.5, ease: str = "both") -> np.ndarray:
     """Minimum-jerk positions from ``p0`` to ``p1`` over ``n`` frames (both ends included).
 
-    ``via`` (optional) bends the path through a point halfway (e.g. lifting the hand
-    over the table edge); the bend is added as a smooth bump ``4 s (1 - s)``.
+    ``via`` (optional) bends the path through a point (e.g. lifting the hand over the
+    table edge): the offset ``via - straight(via_at)`` is added as a smooth bump
+    ``4 u (1 - u)``, ``u = w^k`` with ``k`` such that the bump peaks at progress
+    ``w = via_at`` (``via_at = 0.5``: the classic ``4 w (1 - w)``).
+    ``ease``: "both" (rest to rest), "arrive" (ends with speed: a hand making contact) or
+    "leave" (starts with speed: a hand leaving contact) -- see :func:`ease_warp`.
     Returns (n, 3).
     """
-    s = np.linspace(0.0, 1.0, n)
-    w = min_jerk(s)[:, None]
+    w = ease_warp(np.linspace(0.0, 1.0, n), ease)[:, None]
     path = (1.0 - w) * p0[None] + w * p1[None]
     if via is not None:
-        mid = 0.5 * (p0 + p1)
-        bump = (4.0 * w * (1.0 - w))
-        path = path + bump * (via - mid)[None]
+        c = float(np.clip(via_at, 0.05, 0.95))
+        u = w ** (np.log(0.5) / np.log(c))
+        straight = (1.0 - c) * p0 + c * p1
+        path = path + 4.0 * u * (1.0 - u) * (via - straight)[None]
     return path
+
+
+ARRIVE_CUT = 0.75  # "arrive" keeps the first 75% of a min-jerk profile: ~0.9x mean speed at the end
+
+
+def ease_warp(s: np.ndarray, ease: str = "both") -> np.ndarray:
+    """Progress in [0, 1] for normalised time ``s``: min-jerk, or min-jerk truncated at one end."""
+    if ease == "both":
+        return min_jerk(s)
+    if ease == "arrive":
+        return min_jerk(s * ARRIVE_CUT) / min_jerk(np.float64(ARRIVE_CUT))
+    if ease == "leave":
+        return 1.0 - ease_warp(1.0 - s, "arrive")
+    raise ValueError(f"unknown ease {ease!r}")
 
 
 def slerp_path(r0: np.ndarray, r1: np.ndarray, n: int) -> np.ndarray:
