@@ -288,11 +288,12 @@ def approach_dirs(side: str, large: bool, azimuths=(0, 30, 60), elevations=(0, 3
 
 def search_grasp(synth: GraspSynthesizer, side: str, obj_R: np.ndarray, dirs_world: np.ndarray,
                  rng: np.random.Generator, kind: str | None = None, target=None,
-                 above_table: bool = True) -> Grasp | None:
+                 above_table: bool = True, steep: bool | None = None,
+                 avoid: np.ndarray | None = None) -> Grasp | None:
     """A grasp for ``side`` from world approach directions, with the object at rotation ``obj_R``."""
     finger_ref = obj_R.T @ np.array([0.0, 0.0, 1.0])
     return synth.search(side, dirs_world @ obj_R, finger_ref, rng, kind=kind, target=target,
-                        above_table=above_table)
+                        above_table=above_table, steep=steep, avoid=avoid)
 
 
 def hands_clear(hand_models: dict, g1: Grasp, g2: Grasp, min_gap: float = HAND_CLEARANCE) -> bool:
@@ -974,12 +975,15 @@ def _second_grasp(synth, hands, first: Grasp, side: str, obj_R, rng) -> Grasp | 
     Searched for an object in the air (no steep table-top approaches), then checked to
     keep clear of the other hand and of the table when the object is put back.
     """
-    tries = (((30, 60, 90), (0, 25)),)
+    tries = (((30, 60, 90), (0, 25)), ((0, 45, 90, 135), (-30, 0, 30, 60)))
     kind = "handle" if synth.hint == "handle" and synth.handles else None
+    other = _hand_vertices(hands[first.side], first.R[None], first.t[None], first.hand_pose[None])[0]
     for az, el in tries:
+        # above_table: the dominant hand later puts the object back; no steep approaches:
+        # the object is in the air, and both hands coming from the top would collide.
         g = search_grasp(synth, side, obj_R, approach_dirs(side, False, az, el), rng, kind=kind,
-                         above_table=False)
-        if g is not None and hands_clear(hands, first, g) and _clear_of_table(hands[side], g, synth.table_y):
+                         above_table=True, steep=False, avoid=other)
+        if g is not None and hands_clear(hands, first, g):
             return g
     return None
 

@@ -33,6 +33,7 @@ from ...geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 GAP = 0.0008  # m; resting clearance of a closed segment (well inside the 4.5 mm contact band)
 MAX_PENETRATION = 0.002  # m; deepest tolerated vertex of an accepted grasp
 TABLE_CLEARANCE = 0.004  # m; hand vertices must stay this far above the table
+AVOID_CLEARANCE = 0.006  # m; gap kept to points to avoid (the other hand in a hand-over)
 SWEEP_STEPS = 10  # coarse flexion steps per joint level
 BISECT_STEPS = 4  # refinement halvings after the sweep (~0.6 deg at the end)
 
@@ -139,23 +140,29 @@ class GraspSynthesizer:
     # -- public -------------------------------------------------------------------
     def search(self, side: str, approach_dirs: np.ndarray, finger_ref: np.ndarray,
                rng: np.random.Generator, *, kind: str | None = None, target: np.ndarray | None = None,
-               above_table: bool = True) -> Grasp | None:
+               above_table: bool = True, steep: bool | None = None,
+               avoid: np.ndarray | None = None) -> Grasp | None:
         """Best grasp for ``side`` among candidates built from approach directions.
 
         approach_dirs (A, 3): unit object->hand directions (object frame) to try.
         finger_ref (3,): preferred finger direction (object frame), e.g. away from the body.
+        above_table: keep the hand above the table plane the object rests on.
+        steep: add steep top approaches for low objects (default: ``above_table``).
+        avoid (N, 3): object-frame points the hand must keep ``AVOID_CLEARANCE`` from
+        (e.g. the other hand when taking an object over).
         Returns None if no candidate holds the object.
         """
+        steep = above_table if steep is None else steep
+        dirs = self._steepen(np.asarray(approach_dirs, float)) if steep else np.asarray(approach_dirs, float)
         for k in ([kind] if kind else self._kinds()):
-            grasp = self._search_kind(side, approach_dirs, finger_ref, rng, k, target, above_table)
+            grasp = self._search_kind(side, dirs, finger_ref, rng, k, target, above_table, avoid)
             if grasp is not None:
                 return grasp
         return None
 
-    def _search_kind(self, side, approach_dirs, finger_ref, rng, kind, target, above_table):
+    def _search_kind(self, side, dirs, finger_ref, rng, kind, target, above_table, avoid):
         """:meth:`search` for one grasp kind."""
         target = self._target(kind) if target is None else np.asarray(target, float)
-        dirs = self._steepen(np.asarray(approach_dirs, float)) if above_table else approach_dirs
         R, rolls = self._orientations(side, dirs, finger_ref, kind)
         full, ids, sub = _light_hand(side, self.scale)
         local0 = np.broadcast_to(preshape_local(kind), (len(R), 15, 3)).copy()
@@ -168,7 +175,7 @@ class GraspSynthesizer:
             return None
         R, t, local0, rolls = R[ok], t[ok], local0[ok], rolls[ok]
         local = self._close(sub, R, t, local0, kind)
-        return self._pick(full, side, kind, R, t, local, local0, rolls, rng, above_table)
+        return self._pick(full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid)
 
     # -- candidates ------------------------------------------------------------------
     def _kinds(self) -> list[str]:
@@ -320,7 +327,7 @@ class GraspSynthesizer:
         return np.stack([sd[:, m].min(1) < GAP for m in moving], 1)
 
     # -- scoring -----------------------------------------------------------------------
-    def _pick(self, full, side, kind, R, t, local, local0, rolls, rng, above_table):
+    def _pick(self, full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid=None):
         """Evaluate the closed candidates on the full hand and return the best valid one."""
         v, _ = _pose(full, R, t, local)
         sd = self.df.signed_distance(v.reshape(-1, 3), far="bound").reshape(len(R), -1)
@@ -333,7 +340,7 @@ class GraspSynthesizer:
         else:
             holds = near[:, 1] & (n_fingers >= 1)
         clear = (v[..., 1].min(1) > self.table_y + TABLE_CLEARANCE) if above_table else np.ones(len(R), bool)
-        valid = holds & clear & (pen <= MAX_PENETRATION)
+        valid = holds & clear & (pen <= MAX_PENETRATION) & _clear_of(v, avoid)
         if not valid.any():
             return None
         score = (near[:, 1:].sum(1) + 0.5 * near[:, 0] - 2.0 * rolls - 200.0 * pen
@@ -349,6 +356,16 @@ class GraspSynthesizer:
 
 
 # --- small helpers -------------------------------------------------------------------
+def _clear_of(v: np.ndarray, avoid: np.ndarray | None) -> np.ndarray:
+    """Whether each candidate's vertices (C, V, 3) keep AVOID_CLEARANCE from ``avoid`` (N, 3)."""
+    if avoid is None or len(avoid) == 0:
+        return np.ones(len(v), bool)
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(np.asarray(avoid, float)).query(v.reshape(-1, 3), distance_upper_bound=AVOID_CLEARANCE)
+    return np.isinf(d).reshape(len(v), -1).all(1)
+
+
 def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
     """Rotate ``v`` about unit ``axis`` by ``angle`` (Rodrigues)."""
     return (v * np.cos(angle) + np.cross(axis, v) * np.sin(angle)
