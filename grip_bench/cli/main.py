@@ -24,9 +24,13 @@ grip-bench: train and evaluate hand-object interaction motion synthesis
 Units inside are metres, radians and seconds; reports use mm, cm^3 and %."""
 
 EPILOG = """\
-examples:
-  grip-bench ls metrics          list registered metrics with unit and direction
-  grip-bench <command> --help    help for one command
+a typical session:
+  grip-bench data synth --out data/synth --profile smoke    make SynthGRAB data (GRAB layout)
+  grip-bench train grip --data data/synth --out grip.pt     train a method (see: grip-bench ls methods)
+  grip-bench predict --method grip --checkpoint grip.pt --input data/synth --out pred
+  grip-bench evaluate --pred pred --gt data/synth --out eval
+  grip-bench run --profile smoke                            all of the above for every method and table
+  grip-bench <command> --help                               help for one command
 """
 
 
