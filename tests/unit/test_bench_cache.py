@@ -127,3 +127,15 @@ def test_summary_counts_first_lookup(tmp_path):
     assert s["by_kind"] == {"metrics": {"hits": 0, "misses": 1},
                             "predict": {"hits": 2, "misses": 0}}
     assert fresh.summary_line() == "cache: reused 2 of 3 units (metrics 0/1, predict 2/2)"
+
+
+def test_atomic_write_gives_normal_file_permissions(tmp_path):
+    import os
+    import stat
+
+    from grip_bench.bench.cache import atomic_write_bytes
+
+    path = atomic_write_bytes(tmp_path / "a.csv", b"x")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask
