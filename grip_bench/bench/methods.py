@@ -86,7 +86,8 @@ METHODS: Registry[MethodSpec] = Registry("method")
 
 # Modules whose import registers methods (added as the methods are implemented).
 METHOD_MODULES: list[str] = [
-    "grip_baselines.reference", "grip_bench.grip.method",
+    "grip_baselines.reference", "grip_bench.grip.method", "grip_baselines.grabnet_method",
+    "grip_baselines.toch_method", "grip_baselines.manipnet_method", "grip_baselines.nearest",
 ]
 
 

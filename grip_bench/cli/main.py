@@ -15,7 +15,7 @@ from ..errors import GripBenchError
 
 # Each module defines ``register(subparsers)`` and sets ``func`` on its parser.
 # Later issues append their subcommand modules here.
-SUBCOMMANDS = ["ls", "data", "export", "train", "predict"]
+SUBCOMMANDS = ["ls", "data", "export", "evaluate", "train", "predict", "run", "report"]
 
 DESCRIPTION = """\
 grip-bench: train and evaluate hand-object interaction motion synthesis

@@ -48,7 +48,8 @@ _SPECS = [
     MetricSpec("cc", "Contact consistency", "mm", 1e3, False, "grasp", 1,
                "vertex error on hand vertices within 2 mm of the object in ground truth"),
     MetricSpec("contact_drift", "Contact drift", "mm", 1e3, False, "grasp", 1,
-               "per-frame motion of contact points in the object's frame (finger sliding)"),
+               "per-frame sliding of the method's contact points in the object's frame, "
+               "beyond the ground truth's (GT vs itself = 0)"),
     MetricSpec("iv", "Intersection volume", "cm3", 1e6, False, "grasp", 1,
                "exact vol(hand & object) with manifold3d; NaN plus a count on failure"),
     MetricSpec("pen_depth", "Penetration depth", "mm", 1e3, False, "grasp", 1,
@@ -56,11 +57,13 @@ _SPECS = [
     MetricSpec("contact_ratio", "Contact ratio", "%", 1e2, True, "grasp", 1,
                "share of grasp frames where the hand is within 4.5 mm of the object or inside"),
     MetricSpec("sim_stable", "Physics stability", "%", 1e2, True, "grasp", 1,
-               "MuJoCo, hand fixed, object free: share moving < 1 mm in 5 steps of 1/240 s"),
+               "MuJoCo, hand fixed, object free: share moving < 1 mm in 5 steps of 1/240 s "
+               "(<= 12 evenly spaced grasp frames per sequence and hand)"),
     MetricSpec("sim_disp", "Simulated displacement", "mm", 1e3, False, "grasp", 1,
-               "object displacement after the paper protocol (5 steps of 1/240 s)"),
+               "object displacement after the paper protocol (5 steps of 1/240 s; "
+               "<= 12 grasp frames)"),
     MetricSpec("sim_disp_hold", "Simulated displacement (1 s hold)", "mm", 1e3, False, "grasp", 1,
-               "object displacement after 1 s of simulated time"),
+               "object displacement after 1 s of simulated time (<= 12 grasp frames)"),
     MetricSpec("jitter", "Jitter", "m/s2", 1.0, False, "all", 1,
                "mean acceleration magnitude of hand vertices (second differences at 30 fps)"),
     MetricSpec("jitter_err", "Jitter error", "m/s2", 1.0, False, "all", 1,

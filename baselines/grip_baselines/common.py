@@ -1,0 +1,196 @@
+"""Shared plumbing of the baseline methods: data loading, frames, hands, configs, checkpoints.
+
+Conventions (``docs/architecture.md``): metres and radians; object poses follow GRAB's
+row-vector rule ``world = local @ R_row + t``, i.e. the column rotation is ``R_row^T``;
+hand frames are ``world = R_wrist @ local + transl``. The left procedural hand is the
+x-mirror of the right one, so a left hand is brought into the right hand's frame by
+``S = diag(-1, 1, 1)`` on points and ``(ax, -ay, -az)`` on axis-angles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from grip_bench import constants as C
+from grip_bench.checkpoint import save_checkpoint
+from grip_bench.errors import InputError
+
+SIDES = ("right", "left")
+MIRROR = np.diag([-1.0, 1.0, 1.0])  # right-hand frame <-> left-hand frame
+
+
+# ----------------------------------------------------------------------------- configs
+
+
+def section_config(cls, profile: dict | None, section: str):
+    """Build the train-config dataclass ``cls`` from ``profile[section]`` (defaults elsewhere).
+
+    Unknown keys are an :class:`InputError`: a typo must not silently train the default.
+    """
+    values = dict((profile or {}).get(section, {}) or {})
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise InputError(f"unknown key(s) {unknown} for {cls.__name__}", f"profile [{section}]")
+    return cls(**values)
+
+
+def train_meta(name: str, data_dir: Path, seed: int, cfg, started: float, **extra) -> dict:
+    """Checkpoint ``meta``: method name, train config, data hash, seed and wall time (s)."""
+    from grip_bench.data.grab_io import dataset_hash
+
+    return {
+        "method": name,
+        "trained": True,
+        "seed": int(seed),
+        "data_hash": dataset_hash(data_dir),
+        "train_config": dataclasses.asdict(cfg),
+        "train_seconds": float(time.perf_counter() - started),
+        **extra,
+    }
+
+
+def save_models(out: Path, models: dict, meta: dict) -> Path:
+    """``save_checkpoint`` of ``{name: network}`` (each network carries its ``cfg``)."""
+    return save_checkpoint(
+        out,
+        model_state={k: m.state_dict() for k, m in models.items()},
+        configs={k: m.cfg for k, m in models.items()},
+        meta=meta,
+    )
+
+
+def log(progress: bool, name: str, msg: str) -> None:
+    if progress:
+        print(f"[{name}] {msg}", flush=True)
+
+
+# ----------------------------------------------------------------------------- data
+
+
+def load_split(data_dir, split: str, limit: int = 0, seed: int = 0) -> list:
+    """Sequences of ``split`` (``limit`` > 0: a seeded random subset of that many files)."""
+    from grip_bench.data.grab_io import read_grab
+    from grip_bench.data.splits import sequences_in_split
+
+    files = sequences_in_split(data_dir, split)
+    if limit and len(files) > limit:
+        keep = np.sort(np.random.default_rng(seed).choice(len(files), limit, replace=False))
+        files = [files[i] for i in keep]
+    return [read_grab(p) for p in files]
+
+
+def train_sequences(data_dir, limit: int = 0, seed: int = 0) -> list:
+    """The train split, or an :class:`InputError` when it is empty."""
+    seqs = load_split(data_dir, "train", limit, seed)
+    if not seqs:
+        raise InputError("the train split has no sequences", data_dir)
+    return seqs
+
+
+# ----------------------------------------------------------------------------- hands
+
+
+@functools.lru_cache(maxsize=16)
+def hand_model(side: str, scale: float = 1.0):
+    """A cached :class:`ProceduralHand` (building one costs seconds the first time)."""
+    from grip_bench.bodies.hand import ProceduralHand
+
+    return ProceduralHand(side, float(scale))
+
+
+def seq_hand(seq, side: str):
+    """The procedural hand of ``seq``'s subject; MANO sequences are not supported here."""
+    if seq.body_model != "procedural":
+        raise InputError(
+            "the baselines pose procedural hands only (SynthGRAB); this sequence uses "
+            f"{seq.body_model!r}",
+            f"{seq.source or seq.name}: body_model",
+        )
+    return hand_model(side, float(seq.hand_scale or 1.0))
+
+
+def pose_hand(hand, global_orient, hand_pose, transl) -> tuple[np.ndarray, np.ndarray]:
+    """World vertices (T, V, 3) and joints (T, 21, 3), float64, from numpy axis-angles."""
+    dt = hand.template_vertices.dtype
+    t = lambda a: torch.as_tensor(np.asarray(a, np.float64), dtype=dt)  # noqa: E731
+    with torch.no_grad():
+        v, j = hand(t(global_orient), t(hand_pose).reshape(-1, 15, 3), t(transl))
+    return v.double().numpy(), j.double().numpy()
+
+
+def seq_vertices(seq, side: str, params: dict | None = None) -> np.ndarray:
+    """Posed world vertices (T, V, 3) of one hand of ``seq`` (or of ``params``)."""
+    p = params or seq.hand_params(side)
+    return pose_hand(seq_hand(seq, side), p["global_orient"], p["hand_pose"], p["transl"])[0]
+
+
+def object_pose(seq) -> tuple[np.ndarray, np.ndarray]:
+    """Object pose as column rotations ``R (T, 3, 3)`` and translations ``t (T, 3)``:
+    ``world = R @ local + t`` (the transpose of GRAB's row-vector matrices)."""
+    return np.transpose(seq.object_rotations(), (0, 2, 1)), np.asarray(seq.object["transl"], float)
+
+
+def wrist_pose(params: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Wrist rotations (T, 3, 3) and positions (T, 3) of hand params."""
+    rot = Rotation.from_rotvec(np.asarray(params["global_orient"], float)).as_matrix()
+    return rot, np.asarray(params["transl"], float)
+
+
+def signed_distance(library, seq, world: np.ndarray) -> np.ndarray:
+    """Signed distance (T, N) (m, negative inside) of world points (T, N, 3) to the object.
+
+    Beyond the library grid the bounding-box bound answers: exact enough for the 4.5 mm
+    contact test and for features that are clipped at a few centimetres.
+    """
+    local = library.world_to_object(seq, world)
+    return library.field(seq.obj_name).signed_distance(local, far="bound")
+
+
+def contact_frames(
+    library, seq, side: str, params: dict | None = None, threshold: float = C.CONTACT_THRESHOLD
+) -> np.ndarray:
+    """Frames (T,) where the hand (``params`` or the sequence's) is within ``threshold``
+    of the object or inside it: the grasp frames of DESIGN 5 for ground-truth hands."""
+    d = signed_distance(library, seq, seq_vertices(seq, side, params))
+    return (d <= threshold).any(axis=1)
+
+
+def mirror_pose(aa: np.ndarray) -> np.ndarray:
+    """Mirror axis-angles ``(..., 3k)`` between the hands: ``(ax, ay, az) -> (ax, -ay, -az)``."""
+    a = np.asarray(aa, float)
+    out = a.reshape(*a.shape[:-1], -1, 3) * np.array([1.0, -1.0, -1.0])
+    return out.reshape(a.shape)
+
+
+def matrix_to_rotvec(m: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> axis-angles (..., 3)."""
+    m = np.asarray(m, float)
+    return Rotation.from_matrix(m.reshape(-1, 3, 3)).as_rotvec().reshape(*m.shape[:-2], 3)
+
+
+def vertex_subset(hand, n: int) -> np.ndarray:
+    """``n`` hand vertex ids at a fixed stride (``n = 0``: all vertices), int64."""
+    v = hand.num_vertices
+    return np.arange(v) if n <= 0 or n >= v else np.linspace(0, v - 1, n).astype(np.int64)
+
+
+def seeded(seed: int) -> torch.Generator:
+    return torch.Generator().manual_seed(int(seed))
+
+
+def batches(n: int, size: int, rng: np.random.Generator, shuffle: bool = True):
+    """Index arrays covering ``range(n)`` in chunks of ``size`` (shuffled per call)."""
+    order = rng.permutation(n) if shuffle else np.arange(n)
+    # A final batch of one would break BatchNorm's training statistics: fold it in.
+    cuts = list(range(0, n, size))
+    if len(cuts) > 1 and n - cuts[-1] < 2:
+        cuts.pop()
+    return [order[a:b] for a, b in zip(cuts, cuts[1:] + [n], strict=True)]

@@ -1,0 +1,262 @@
+"""``manipnet``: ManipNet-style single right-hand autoregressive finger model as a method.
+
+Training (train split, right hand, every frame of up to ``max_sequences`` sequences):
+teacher forcing (the previous finger pose is the ground truth of frame t-1), then
+``ss_epochs`` epochs of scheduled sampling where a share ``ss_share`` of frames gets the
+model's own prediction of frame t-1 as the previous pose (features recomputed, since the
+distance features depend on it). Loss: 6D pose L2 + finger-vertex L1 (cm).
+
+Prediction: autoregressive over the whole sequence with the input (ground-truth) right
+wrist; the first frame starts from the relaxed mean hand (the input's own fingers are
+never read). The left hand is returned unchanged: ManipNet is a single-hand model.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
+from grip_bench.checkpoint import load_checkpoint
+from grip_bench.constants import MANIPNET_FUTURE, MANIPNET_PAST, MANIPNET_VOXEL_RES
+from grip_bench.errors import InputError
+from grip_bench.geometry.rotations import axis_angle_to_rotation_6d, rotation_6d_to_axis_angle
+
+from . import common as U
+from .manipnet import ManipNetConfig, manipnet_features
+
+
+@dataclass
+class ManipNetTrainConfig:
+    """Profile section ``[manipnet]``."""
+
+    width: int = 256
+    hidden: int = 256
+    n_blocks: int = 2
+    dropout: float = 0.1
+    n_past: int = MANIPNET_PAST
+    n_future: int = MANIPNET_FUTURE
+    voxel_res: int = MANIPNET_VOXEL_RES
+    epochs: int = 10  # teacher-forced epochs
+    ss_epochs: int = 2  # scheduled-sampling epochs after them
+    ss_share: float = 0.3  # share of frames fed the model's own previous pose
+    batch_size: int = 256
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    max_sequences: int = 60  # train files read (0 = all); every frame of each is used
+    loss_vertices: int = 256
+    w_vertex: float = 100.0  # vertex L1 in m -> read in cm
+    # Axis-angle noise (rad) on the teacher-forced previous pose: with slowly changing
+    # fingers "copy the previous pose" is nearly optimal, so without it the model never
+    # learns to move the fingers towards what the object asks for.
+    prev_noise: float = 0.1
+
+
+def proximity_fn(hand):
+    """Proximity vertices ``(M, 99, 3)`` for wrists ``rot (M,3,3)``, ``pos (M,3)`` and finger
+    poses ``(M, 15, 3)``: each distinct pose is skinned once, then placed rigidly (the
+    feature function repeats one pose on up to 11 wrists)."""
+    ids = np.asarray(hand.proximity_ids)
+
+    def fn(rot, pos, pose):
+        flat = np.asarray(pose, np.float64).reshape(len(pose), -1)
+        uniq, inv = np.unique(flat, axis=0, return_inverse=True)
+        local = U.pose_hand(hand, np.zeros((len(uniq), 3)), uniq, np.zeros((len(uniq), 3)))[0]
+        local = local[:, ids][inv.reshape(-1)]  # (M, 99, 3)
+        return np.einsum("mij,mkj->mki", rot, local) + np.asarray(pos)[:, None]
+
+    return fn
+
+
+class SeqData:
+    """What the feature function needs of one sequence's right hand (numpy, float64)."""
+
+    def __init__(self, seq, library):
+        self.wrist_rot, self.wrist_pos = U.wrist_pose(seq.hand_params("right"))
+        self.obj_rot, self.obj_pos = U.object_pose(seq)
+        self.pose = np.asarray(seq.rhand["hand_pose"], float).reshape(-1, 15, 3)
+        field = library.field(seq.obj_name)
+        self.sdf = lambda p: field.signed_distance(p, far="bound")  # noqa: E731
+        self.prox = proximity_fn(U.seq_hand(seq, "right"))
+
+    def features(self, prev: np.ndarray, frames, cfg: ManipNetConfig):
+        """Feature tensors for ``frames``; ``prev (T, 15, 3)`` = previous pose of each frame."""
+        f = manipnet_features(
+            self.wrist_rot,
+            self.wrist_pos,
+            self.obj_rot,
+            self.obj_pos,
+            prev,
+            self.sdf,
+            self.prox,
+            frames=np.asarray(frames),
+            cfg=cfg,
+        )
+        return f.torch()
+
+
+def _cat(parts):
+    return [torch.cat(x) for x in zip(*parts, strict=True)]
+
+
+def _teacher(d: SeqData, noise: float, rng) -> np.ndarray:
+    """Previous poses (T, 15, 3): the ground truth of t-1 (t = 0 repeats itself), noised."""
+    prev = np.concatenate([d.pose[:1], d.pose[:-1]])
+    return prev + noise * rng.normal(size=prev.shape)
+
+
+def _build(seqs, library, cfg, noise, rng):
+    """Teacher-forced features of every frame: (data list, feature tensors, targets 6D, seq index)."""
+    data = [SeqData(s, library) for s in seqs]
+    feats, targets, owner = [], [], []
+    for k, d in enumerate(data):
+        prev = _teacher(d, noise, rng)
+        feats.append(d.features(prev, np.arange(len(d.pose)), cfg))
+        targets.append(torch.as_tensor(axis_angle_to_rotation_6d(d.pose), dtype=torch.float32))
+        owner.append(np.full(len(d.pose), k))
+    return data, _cat(feats), torch.cat(targets), np.concatenate(owner)
+
+
+def _predict_all(net, feats, bs=1024) -> torch.Tensor:
+    net.eval()
+    with torch.no_grad():
+        return torch.cat(
+            [net(*(x[i : i + bs] for x in feats)) for i in range(0, len(feats[0]), bs)]
+        )
+
+
+def _scheduled(net, data, feats, cfg: ManipNetConfig, share, rng):
+    """Features where a share of frames sees the model's own prediction of frame t-1."""
+    pred = rotation_6d_to_axis_angle(_predict_all(net, feats).double()).numpy()  # (N, 15, 3)
+    feats = [x.clone() for x in feats]
+    start = 0
+    for d in data:
+        n = len(d.pose)
+        pick = np.flatnonzero(rng.random(n) < share)
+        pick = pick[pick > 0]
+        if len(pick):
+            prev = np.concatenate([d.pose[:1], d.pose[:-1]])
+            prev[pick] = pred[start + pick - 1]
+            new = d.features(prev, pick, cfg)
+            for x, y in zip(feats, new, strict=True):
+                x[start + pick] = y
+        start += n
+    return feats
+
+
+def _loss(net, feats, target, idx, hand, vids, cfg):
+    pred = net(*(x[idx] for x in feats))  # (B, 15, 6)
+    loss = (pred - target[idx]).pow(2).mean()
+    aa = lambda p: rotation_6d_to_axis_angle(p)  # noqa: E731
+    v_pred = hand(None, aa(pred), None)[0][:, vids]
+    with torch.no_grad():
+        v_gt = hand(None, aa(target[idx]), None)[0][:, vids]
+    return loss + cfg.w_vertex * (v_pred - v_gt).abs().mean()
+
+
+def train_manipnet(name, data_dir, cfg: ManipNetTrainConfig, seed, progress):
+    from grip_bench.data.library import ObjectLibrary
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    library = ObjectLibrary(data_dir)
+    seqs = U.train_sequences(data_dir, cfg.max_sequences, seed)
+    ncfg = ManipNetConfig(
+        n_past=cfg.n_past,
+        n_future=cfg.n_future,
+        voxel_res=cfg.voxel_res,
+        width=cfg.width,
+        hidden=cfg.hidden,
+        n_blocks=cfg.n_blocks,
+        dropout=cfg.dropout,
+    )
+    net = ncfg.build()
+    data, feats, target, owner = _build(seqs, library, ncfg, cfg.prev_noise, rng)
+    U.log(progress, name, f"{len(owner)} frames of {len(seqs)} sequences")
+    hand = U.hand_model("right")
+    vids = U.vertex_subset(hand, cfg.loss_vertices)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    teacher = feats
+    for epoch in range(cfg.epochs + cfg.ss_epochs):
+        if epoch >= cfg.epochs:
+            feats = _scheduled(net, data, teacher, ncfg, cfg.ss_share, rng)
+        net.train()
+        total = 0.0
+        for idx in U.batches(len(owner), cfg.batch_size, rng):
+            loss = _loss(net, feats, target, idx, hand, vids, cfg)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+        U.log(
+            progress,
+            name,
+            f"epoch {epoch + 1}/{cfg.epochs + cfg.ss_epochs} loss {total / len(owner):.4f}",
+        )
+    return net.eval(), len(owner)
+
+
+class ManipNetMethod:
+    """Right-hand fingers rolled out frame by frame at the input wrists."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.net = None
+
+    def train(
+        self,
+        data_dir: Path,
+        out: Path,
+        *,
+        profile: dict,
+        seed: int = 0,
+        device: str = "cpu",
+        progress: bool = True,
+    ) -> Path:
+        t0 = time.perf_counter()
+        cfg = U.section_config(ManipNetTrainConfig, profile, "manipnet")
+        net, n = train_manipnet(self.name, Path(data_dir), cfg, seed, progress)
+        meta = U.train_meta(self.name, Path(data_dir), seed, cfg, t0, n_samples=n)
+        return U.save_models(Path(out), {"manipnet": net}, meta)
+
+    def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
+        ck = load_checkpoint(checkpoint, {"manipnet": ManipNetConfig})
+        if ck.meta.get("method") != self.name:
+            raise InputError(
+                f"checkpoint of {ck.meta.get('method')!r}, not {self.name!r}", checkpoint
+            )
+        self.net = ck.models()["manipnet"]
+
+    def predict(self, seq, ctx: PredictContext):
+        """Autoregressive right-hand fingers; wrists and the left hand as in the input."""
+        if self.net is None:
+            raise InputError("load a checkpoint before predicting", self.name)
+        d = SeqData(seq, ctx.library)
+        T = seq.n_frames
+        prev = np.zeros((T, 15, 3))
+        out = np.zeros((T, 15, 3))
+        state = U.seq_hand(seq, "right").named_pose("relaxed").double().numpy()  # (15, 3)
+        self.net.eval()
+        for t in range(T):
+            prev[t] = state
+            feats = d.features(prev, [t], self.net.cfg)
+            with torch.no_grad():
+                pose6 = self.net(*feats)
+            state = rotation_6d_to_axis_angle(pose6.double())[0].numpy()
+            out[t] = state
+        return seq.with_hands(right={"hand_pose": out.reshape(T, 45)})
+
+
+register_method(
+    MethodSpec(
+        name="manipnet",
+        description="ManipNet-style autoregressive right-hand fingers at the input wrists (left unchanged)",
+        factory=ManipNetMethod,
+        needs=("object", "wrists"),
+        tables=("table4_grasp",),
+    )
+)

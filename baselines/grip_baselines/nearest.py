@@ -1,0 +1,175 @@
+"""``nearest-neighbour``: copy the finger pose of the training frame with the closest sensors.
+
+Reference row (no learning beyond an index). A frame's key is GRIP's stage-one sensor
+reading of one hand at its input wrist (:func:`grip_bench.sensors.stage_one`): the
+ambient feature ``exp(-5 d)`` at 1024 hemisphere points and the proximity feature
+``exp(-50 d)`` of the relaxed mean hand's 99 vertices. The proximity block is scaled by
+``sqrt(1024 / 99)`` so both blocks weigh alike. Keys are reduced by PCA and searched
+with a KD-tree (rebuilt from the stored keys at load).
+
+Both hands share one index: the sensors of a left hand are the mirror image of a right
+hand's (same points, x-mirrored), so left frames enter with their poses mirrored into
+the right hand's convention and are mirrored back when copied. Wrists stay the input's.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import nn
+
+from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
+from grip_bench.checkpoint import load_checkpoint
+from grip_bench.errors import InputError
+
+from . import common as U
+
+NET_SIDES = ("left", "right")  # order of grip_bench.sensors' (T, 2, ...) arrays
+
+
+@dataclass
+class NearestTrainConfig:
+    """Profile section ``[nearest]``."""
+
+    n_components: int = 32  # PCA dimensions of the keys
+    max_frames: int = 50000  # training frames indexed (hands counted apiece; 0 = all)
+    max_sequences: int = 0
+
+
+@dataclass
+class NearestIndexConfig:
+    """Sizes of the stored index (the checkpoint's 'network')."""
+
+    n_items: int = 1
+    feat_dim: int = 1123
+    n_components: int = 32
+
+    def build(self) -> NearestIndex:
+        return NearestIndex(self)
+
+
+class NearestIndex(nn.Module):
+    """Buffers only: PCA ``mean (D,)``, ``components (k, D)``, ``keys (N, k)``, ``poses (N, 45)``."""
+
+    def __init__(self, cfg: NearestIndexConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.register_buffer("mean", torch.zeros(cfg.feat_dim, dtype=torch.float64))
+        self.register_buffer(
+            "components", torch.zeros(cfg.n_components, cfg.feat_dim, dtype=torch.float64)
+        )
+        self.register_buffer(
+            "keys", torch.zeros(cfg.n_items, cfg.n_components, dtype=torch.float64)
+        )
+        self.register_buffer("poses", torch.zeros(cfg.n_items, 45, dtype=torch.float64))
+
+    def reduce(self, feats: np.ndarray) -> np.ndarray:
+        """Features (M, D) -> PCA keys (M, k)."""
+        return (feats - self.mean.numpy()) @ self.components.numpy().T
+
+
+def sensor_features(library, seq) -> np.ndarray:
+    """Per hand and frame keys ``(2, T, D)`` in :data:`common.SIDES` order (right, left)."""
+    from grip_bench.sensors import stage_one
+
+    s = stage_one(library, seq)
+    amb, prox = s.ambient.astype(np.float64), s.proximity.astype(np.float64)
+    w = np.sqrt(amb.shape[-1] / prox.shape[-1])
+    feats = np.concatenate([amb, w * prox], -1)  # (T, 2, D), hands (left, right)
+    return np.stack([feats[:, NET_SIDES.index(side)] for side in U.SIDES])
+
+
+def _training_items(seqs, library, cfg: NearestTrainConfig, seed: int):
+    feats, poses = [], []
+    for seq in seqs:
+        f = sensor_features(library, seq)
+        for k, side in enumerate(U.SIDES):
+            pose = np.asarray(seq.hand_params(side)["hand_pose"], float)
+            feats.append(f[k])
+            poses.append(U.mirror_pose(pose) if side == "left" else pose)
+    feats, poses = np.concatenate(feats), np.concatenate(poses)
+    if cfg.max_frames and len(feats) > cfg.max_frames:
+        keep = np.sort(
+            np.random.default_rng(seed).choice(len(feats), cfg.max_frames, replace=False)
+        )
+        feats, poses = feats[keep], poses[keep]
+    return feats, poses
+
+
+def build_index(feats: np.ndarray, poses: np.ndarray, n_components: int) -> NearestIndex:
+    """PCA of ``feats (N, D)`` (top ``n_components`` right singular vectors) and the keys."""
+    mean = feats.mean(0)
+    k = min(n_components, *feats.shape)
+    _, _, vt = np.linalg.svd(feats - mean, full_matrices=False)
+    index = NearestIndexConfig(len(feats), feats.shape[1], k).build()
+    index.mean.copy_(torch.as_tensor(mean))
+    index.components.copy_(torch.as_tensor(vt[:k]))
+    index.keys.copy_(torch.as_tensor(index.reduce(feats)))
+    index.poses.copy_(torch.as_tensor(poses))
+    return index
+
+
+class NearestMethod:
+    """Retrieval of training finger poses by sensor similarity."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.index = self.tree = None
+
+    def train(
+        self,
+        data_dir: Path,
+        out: Path,
+        *,
+        profile: dict,
+        seed: int = 0,
+        device: str = "cpu",
+        progress: bool = True,
+    ) -> Path:
+        from grip_bench.data.library import ObjectLibrary
+
+        t0 = time.perf_counter()
+        cfg = U.section_config(NearestTrainConfig, profile, "nearest")
+        seqs = U.train_sequences(data_dir, cfg.max_sequences, seed)
+        feats, poses = _training_items(seqs, ObjectLibrary(data_dir), cfg, seed)
+        index = build_index(feats, poses, cfg.n_components)
+        U.log(progress, self.name, f"indexed {len(feats)} hand frames")
+        meta = U.train_meta(self.name, Path(data_dir), seed, cfg, t0, n_samples=len(feats))
+        return U.save_models(Path(out), {"index": index}, meta)
+
+    def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
+        ck = load_checkpoint(checkpoint, {"index": NearestIndexConfig})
+        if ck.meta.get("method") != self.name:
+            raise InputError(
+                f"checkpoint of {ck.meta.get('method')!r}, not {self.name!r}", checkpoint
+            )
+        self.index = ck.models()["index"]
+        self.tree = cKDTree(self.index.keys.numpy())
+
+    def predict(self, seq, ctx: PredictContext):
+        """Both hands' fingers copied from the nearest training frames; wrists kept."""
+        if self.tree is None:
+            raise InputError("load a checkpoint before predicting", self.name)
+        feats = sensor_features(ctx.library, seq)
+        new = {}
+        for k, side in enumerate(U.SIDES):
+            _, nn_idx = self.tree.query(self.index.reduce(feats[k]))
+            pose = self.index.poses.numpy()[nn_idx]
+            new[side] = {"hand_pose": U.mirror_pose(pose) if side == "left" else pose}
+        return seq.with_hands(**new)
+
+
+register_method(
+    MethodSpec(
+        name="nearest-neighbour",
+        description="copy the finger pose of the training frame with the nearest GRIP sensor reading",
+        factory=NearestMethod,
+        needs=("object", "wrists", "train_data"),
+        tables=(),
+    )
+)

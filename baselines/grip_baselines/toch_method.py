@@ -1,0 +1,304 @@
+"""``toch``: TOCH-style refiner of perturbed hands (GRIP Table 3) as a benchmark method.
+
+Per hand, in the object's frame: the correspondence field of the hand over ``n_points``
+object surface samples (fixed, seeded per object), a :class:`TemporalAE` that maps the
+field of a noisy window to the clean one, and :func:`fit_hand_to_field` that solves the
+hand pose, wrist orientation and wrist translation per frame from the denoised field.
+
+Training: windows of ``window`` frames from the train split that contain an interaction
+frame; each window is perturbed with one of GRAB-T (0.01, 0.02 m) and GRAB-R (0.3, 0.5
+rad) in turn, and the network learns noisy field -> ground-truth field. Both hands
+share one network: a left hand's canonical correspondences are mirrored (x -> -x) into
+the right hand's canonical space.
+
+Prediction: only *interaction frames* are refined, the frames where the input hand comes
+within ``interaction_distance`` of the object; they are cut into windows of at most
+``window`` frames. Other frames, and windows whose denoised field has no hit, keep the
+input hand.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import trimesh
+
+from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
+from grip_bench.checkpoint import load_checkpoint
+from grip_bench.constants import (
+    TOCH_HIT_THRESHOLD,
+    TOCH_INTERACTION_DISTANCE,
+    TOCH_R_SIGMAS,
+    TOCH_T_SIGMAS,
+    TOCH_WINDOW,
+)
+from grip_bench.errors import InputError
+
+from . import common as U
+from .toch import FitConfig, TemporalAEConfig, correspondence_field, field_losses, fit_hand_to_field
+
+PERTURBATIONS = tuple(("T", s) for s in TOCH_T_SIGMAS) + tuple(("R", s) for s in TOCH_R_SIGMAS)
+MIRROR_X = np.array([-1.0, 1.0, 1.0])
+
+
+@dataclass
+class TochTrainConfig:
+    """Profile section ``[toch]``."""
+
+    n_points: int = 500  # object surface samples per frame (TOCH: 2000)
+    local_dim: int = 64
+    frame_dim: int = 128
+    gru_hidden: int = 128
+    window: int = TOCH_WINDOW
+    epochs: int = 25
+    batch_size: int = 4  # windows per step
+    lr: float = 2e-3
+    max_windows: int = 64  # training windows (each with one perturbation)
+    max_sequences: int = 0  # train files read (0 = all)
+    fit_iters: int = 60
+    interaction_distance: float = TOCH_INTERACTION_DISTANCE
+    hit_threshold: float = TOCH_HIT_THRESHOLD  # denoised hit probability that counts as a hit
+
+
+@functools.lru_cache(maxsize=64)
+def _samples(library, name: str, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded surface samples (n, 3) and outward unit normals (n, 3) of one object (m)."""
+    mesh = library.mesh(name)
+    pts, face = trimesh.sample.sample_surface(mesh, n, seed=0)
+    return np.asarray(pts, float), np.asarray(mesh.face_normals[face], float)
+
+
+def hand_fields(library, seq, side: str, params: dict, frames, n_points: int) -> np.ndarray:
+    """Correspondence fields (F, N, 5) of one hand over ``frames``, canonical points in
+    the right hand's canonical space (left mirrored)."""
+    pts, nrm = _samples(library, seq.obj_name, n_points)
+    hand = U.seq_hand(seq, side)
+    sub = {k: np.asarray(v)[frames] for k, v in params.items()}
+    world = U.pose_hand(hand, sub["global_orient"], sub["hand_pose"], sub["transl"])[0]
+    local = _to_object(seq, frames, world)
+    faces, canon = np.asarray(hand.faces), hand.template_vertices.double().numpy()
+    out = np.stack([correspondence_field(pts, nrm, v, faces, canon).as_array() for v in local])
+    if side == "left":
+        out[..., 2:] *= MIRROR_X
+    return out
+
+
+def _to_object(seq, frames, world: np.ndarray) -> np.ndarray:
+    """World points (F, V, 3) of ``frames`` -> object frame."""
+    R, t = (x[frames] for x in U.object_pose(seq))
+    return np.einsum("fji,fvj->fvi", R, world - t[:, None])
+
+
+def interaction_frames(library, seq, side: str, params: dict, dist: float) -> np.ndarray:
+    """(T,) bool: the hand comes within ``dist`` (m) of the object."""
+    return (U.signed_distance(library, seq, U.seq_vertices(seq, side, params)) <= dist).any(1)
+
+
+def windows_of(mask: np.ndarray, length: int) -> list[np.ndarray]:
+    """Runs of True frames cut into consecutive windows of at most ``length`` frames."""
+    idx = np.flatnonzero(mask)
+    if len(idx) == 0:
+        return []
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    return [r[i : i + length] for r in runs for i in range(0, len(r), length)]
+
+
+# ----------------------------------------------------------------------------- training
+
+
+def _training_windows(seqs, library, cfg: TochTrainConfig, rng):
+    """(seq, side, start) of windows holding at least one ground-truth interaction frame."""
+    out = []
+    for seq in seqs:
+        if seq.n_frames < cfg.window:
+            continue
+        for side in U.SIDES:
+            near = interaction_frames(
+                library, seq, side, seq.hand_params(side), cfg.interaction_distance
+            )
+            for start in range(0, seq.n_frames - cfg.window + 1, max(cfg.window // 2, 1)):
+                if near[start : start + cfg.window].any():
+                    out.append((seq, side, start))
+    if not out:
+        raise InputError(
+            f"no train window of {cfg.window} frames near an object", "toch training data"
+        )
+    pick = rng.permutation(len(out))[: cfg.max_windows or len(out)]
+    return [out[i] for i in pick]
+
+
+def _window_tensors(windows, library, cfg, seed):
+    """Stacked (points, normals, noisy field, clean field) over the windows, float32."""
+    from grip_bench.data.perturb import perturb_sequence
+
+    P, Nn, X, Y = [], [], [], []
+    for k, (seq, side, start) in enumerate(windows):
+        frames = np.arange(start, start + cfg.window)
+        kind, sigma = PERTURBATIONS[k % len(PERTURBATIONS)]
+        noisy = perturb_sequence(seq, kind, sigma, np.random.default_rng([seed, k]))
+        X.append(hand_fields(library, seq, side, noisy.hand_params(side), frames, cfg.n_points))
+        Y.append(hand_fields(library, seq, side, seq.hand_params(side), frames, cfg.n_points))
+        pts, nrm = _samples(library, seq.obj_name, cfg.n_points)
+        centre = library.mesh(seq.obj_name).centroid
+        P.append(np.broadcast_to(pts - centre, (cfg.window, *pts.shape)))
+        Nn.append(np.broadcast_to(nrm, (cfg.window, *nrm.shape)))
+    return [torch.as_tensor(np.stack(a), dtype=torch.float32) for a in (P, Nn, X, Y)]
+
+
+def train_toch(name, data_dir, cfg: TochTrainConfig, seed, progress):
+    from grip_bench.data.library import ObjectLibrary
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    library = ObjectLibrary(data_dir)
+    seqs = U.train_sequences(data_dir, cfg.max_sequences, seed)
+    windows = _training_windows(seqs, library, cfg, rng)
+    pts, nrm, noisy, clean = _window_tensors(windows, library, cfg, seed)
+    U.log(progress, name, f"{len(windows)} windows of {cfg.window} frames")
+    net = TemporalAEConfig(
+        local_dim=cfg.local_dim,
+        frame_dim=cfg.frame_dim,
+        gru_hidden=cfg.gru_hidden,
+        window=cfg.window,
+    ).build()
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    for epoch in range(cfg.epochs):
+        net.train()
+        total = 0.0
+        for idx in U.batches(len(windows), cfg.batch_size, rng):
+            loss = field_losses(net(pts[idx], nrm[idx], noisy[idx]), clean[idx])[0]
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+        U.log(progress, name, f"epoch {epoch + 1}/{cfg.epochs} loss {total / len(windows):.4f}")
+    return net.eval(), len(windows)
+
+
+# ----------------------------------------------------------------------------- method
+
+
+class TochMethod:
+    """Denoise correspondence fields over interaction windows, then fit the hands to them."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.net = None
+        self.cfg = TochTrainConfig()
+
+    def train(
+        self,
+        data_dir: Path,
+        out: Path,
+        *,
+        profile: dict,
+        seed: int = 0,
+        device: str = "cpu",
+        progress: bool = True,
+    ) -> Path:
+        t0 = time.perf_counter()
+        cfg = U.section_config(TochTrainConfig, profile, "toch")
+        net, n = train_toch(self.name, Path(data_dir), cfg, seed, progress)
+        meta = U.train_meta(self.name, Path(data_dir), seed, cfg, t0, n_samples=n)
+        return U.save_models(Path(out), {"toch": net}, meta)
+
+    def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
+        ck = load_checkpoint(checkpoint, {"toch": TemporalAEConfig})
+        if ck.meta.get("method") != self.name:
+            raise InputError(
+                f"checkpoint of {ck.meta.get('method')!r}, not {self.name!r}", checkpoint
+            )
+        self.net = ck.models()["toch"]
+        self.cfg = TochTrainConfig(**ck.meta["train_config"])
+
+    def predict(self, seq, ctx: PredictContext):
+        """Both hands refined on their interaction frames; everything else as in the input."""
+        if self.net is None:
+            raise InputError("load a checkpoint before predicting", self.name)
+        return seq.with_hands(
+            **{side: self._refine_side(seq, ctx.library, side) for side in U.SIDES}
+        )
+
+    def _refine_side(self, seq, library, side: str) -> dict:
+        cfg = self.cfg
+        p = {
+            k: np.array(seq.hand_params(side)[k], float)
+            for k in ("global_orient", "hand_pose", "transl")
+        }
+        near = interaction_frames(library, seq, side, p, cfg.interaction_distance)
+        for frames in windows_of(near, cfg.window):
+            fit = self._fit_window(seq, library, side, p, frames)
+            if fit is not None:
+                p["global_orient"][frames], p["hand_pose"][frames], p["transl"][frames] = fit
+        return p
+
+    def _denoise(self, seq, library, side, p, frames):
+        """Denoised field of one window: hit (F, N) bool, distance (F, N), canonical (F, N, 3)."""
+        cfg = self.cfg
+        pts, nrm = _samples(library, seq.obj_name, cfg.n_points)
+        field = hand_fields(library, seq, side, p, frames, cfg.n_points)
+
+        def per_frame(a):  # (N, 3) fixed in the object frame -> (1, F, N, 3)
+            return torch.as_tensor(
+                np.broadcast_to(a, (len(frames), *a.shape)).copy(), dtype=torch.float32
+            )[None]
+
+        centre = library.mesh(seq.obj_name).centroid
+        with torch.no_grad():
+            noisy = torch.as_tensor(field, dtype=torch.float32)[None]
+            out = self.net(per_frame(pts - centre), per_frame(nrm), noisy)[0].double().numpy()
+        canon = out[..., 2:] * (MIRROR_X if side == "left" else 1.0)
+        hit = torch.sigmoid(torch.as_tensor(out[..., 0])).numpy() > cfg.hit_threshold
+        return hit, out[..., 1], canon
+
+    def _fit_window(self, seq, library, side, p, frames):
+        """Hand params (go (F,3), pose (F,45), transl (F,3)) fitted to the denoised field,
+        or None when the field has no hit."""
+        hit, dist, canon = self._denoise(seq, library, side, p, frames)
+        if not hit.any():
+            return None
+        pts, nrm = _samples(library, seq.obj_name, self.cfg.n_points)
+        F = len(frames)
+        hand = U.seq_hand(seq, side)
+        R, t = (torch.as_tensor(x[frames], dtype=torch.float32) for x in U.object_pose(seq))
+
+        def forward(go, pose, transl):  # world hand -> object frame (F, V, 3)
+            v = hand(go, pose, transl)[0]
+            return torch.einsum("fji,fvj->fvi", R, v - t[:, None])
+
+        f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+        res = fit_hand_to_field(
+            np.broadcast_to(pts, (F, *pts.shape)),
+            np.broadcast_to(nrm, (F, *nrm.shape)),
+            hit,
+            dist,
+            canon,
+            forward,
+            hand.template_vertices.double().numpy(),
+            np.asarray(hand.faces),
+            f32(p["global_orient"][frames]),
+            f32(p["hand_pose"][frames]).reshape(F, 15, 3),
+            f32(p["transl"][frames]),
+            FitConfig(n_iters=self.cfg.fit_iters),
+        )
+        return (
+            res.global_orient.double().numpy(),
+            res.hand_pose.double().numpy().reshape(F, 45),
+            res.transl.double().numpy(),
+        )
+
+
+register_method(
+    MethodSpec(
+        name="toch",
+        description="TOCH-style refiner: denoised correspondence fields + hand fitting on interaction frames",
+        factory=TochMethod,
+        needs=("object", "noisy_hands"),
+        tables=("table3_perturbation",),
+    )
+)

@@ -1,0 +1,28 @@
+"""``grip-bench report OUT``: re-render tables, leaderboard and figures of a finished run
+from its saved results, recomputing nothing (same bytes as ``run`` wrote)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser("report", help="re-render tables, leaderboard and figures of a run",
+                       description="Read OUT/results.csv, OUT/runtime.csv and the saved figure "
+                       "data and write OUT/tables/, OUT/leaderboard.* and OUT/figures/ again, "
+                       "with the options recorded in OUT/manifest.json. Nothing is recomputed.")
+    p.add_argument("out", type=Path, metavar="OUT", help="output folder of `grip-bench run`")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..bench.runner import write_report
+    from ..errors import InputError
+
+    if not (args.out / "results.csv").is_file():
+        raise InputError("no results.csv here (is it the OUT folder of `grip-bench run`?)",
+                         where=args.out)
+    written = write_report(args.out)
+    print(f"wrote {len(written)} files under {args.out}")
+    return 0

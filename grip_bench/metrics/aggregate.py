@@ -1,0 +1,268 @@
+"""Evaluate a folder of predictions against a ground-truth dataset (``grip-bench evaluate``).
+
+Sequences are matched by their path relative to the data folder (``grab/s1/mug_lift_1.npz``).
+Every GT sequence of the evaluated split needs a prediction, every prediction a GT sequence,
+with equal frame counts and the same object: all of this is checked from file headers before
+anything is computed or written. Sequences then run over a process pool (spawn-safe, one
+:class:`ObjectLibrary` and one torch thread per worker); rows are sorted canonically, so the
+files are byte-identical for any number of workers.
+
+Writes (atomically) ``results.csv``, ``frames.csv`` with ``per_frame`` and ``evaluation.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections import Counter
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from .. import constants as C
+from ..errors import InputError
+from .evaluate import EvalOptions, RowLabels
+
+ALL_SPLITS = "all"
+
+
+@dataclass(frozen=True)
+class Task:
+    """One (prediction, ground truth) file pair to evaluate."""
+
+    pred: str
+    gt: str
+    labels: RowLabels
+    options: EvalOptions
+    per_frame: bool
+
+
+# ------------------------------------------------------------------ labels
+def _manifest(data_dir: Path) -> dict:
+    path = data_dir / "manifest.json"
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"not readable JSON ({e})", path) from e
+    return data if isinstance(data, dict) else {}
+
+
+def dataset_name(gt_dir: Path, manifest: dict) -> str:
+    """``dataset`` (or the generator's name, e.g. "synthgrab") from the GT manifest, else the
+    folder's name."""
+    name = manifest.get("dataset") or manifest.get("generator")
+    if isinstance(name, dict):
+        name = name.get("name")
+    if isinstance(name, str) and name.strip():
+        return name.strip().split()[0].lower()
+    return gt_dir.resolve().name
+
+
+def perturbation_name(manifest: dict) -> str:
+    """``perturbation`` of the prediction folder's manifest ("T0.01"), or one derived from a
+    ``grip-bench data perturb`` manifest (kind + sigma), else "none"."""
+    name = manifest.get("perturbation")
+    if isinstance(name, str) and name:
+        return name
+    kind, sigma = manifest.get("kind"), manifest.get("sigma")
+    if isinstance(kind, str) and sigma is not None:
+        sig = ",".join(f"{s:g}" for s in sigma) if isinstance(sigma, list) else f"{sigma:g}"
+        return f"{kind}{sig}"
+    return "none"
+
+
+# ------------------------------------------------------------------ matching
+def _listing(paths: list[str], n: int = C.EVAL_MAX_LISTED) -> str:
+    more = f" (and {len(paths) - n} more)" if len(paths) > n else ""
+    return ", ".join(paths[:n]) + more
+
+
+def gt_sequences(gt_dir: Path, split: str) -> tuple[dict[str, dict], str]:
+    """GT headers by relative path for ``split`` ("all": every sequence) and the split name."""
+    from ..data.grab_io import list_sequences, read_grab_header
+    from ..data.splits import SPLIT_NAMES, read_splits
+
+    if split != ALL_SPLITS and split not in SPLIT_NAMES:
+        raise InputError(f"unknown split {split!r} (allowed: {', '.join(SPLIT_NAMES)}, all)", "--split")
+    headers = {p.relative_to(gt_dir).as_posix(): read_grab_header(p) for p in list_sequences(gt_dir)}
+    if split == ALL_SPLITS:
+        return headers, split
+    wanted = set(read_splits(gt_dir, default="grip")[split])
+    return {k: h for k, h in headers.items() if h["obj_name"] in wanted}, split
+
+
+def match_sequences(pred_dir: Path, gt_dir: Path, split: str) -> tuple[list[tuple[str, dict, dict]], int]:
+    """Matched (relative path, pred header, GT header) triples, sorted, and the number of
+    predictions ignored because their GT sequence belongs to another split.
+
+    Raises :class:`InputError` (nothing computed yet) on missing or extra sequences, different
+    frame counts or different objects.
+    """
+    from ..data.grab_io import list_sequences, read_grab_header
+
+    gt, split = gt_sequences(gt_dir, split)
+    if not gt:
+        raise InputError(f"no ground-truth sequences in split '{split}'", gt_dir)
+    all_gt = {p.relative_to(gt_dir).as_posix() for p in list_sequences(gt_dir)}
+    pred_paths = {p.relative_to(pred_dir).as_posix(): p for p in list_sequences(pred_dir)}
+    missing = sorted(set(gt) - set(pred_paths))
+    if missing:
+        raise InputError(f"{len(missing)} ground-truth sequence(s) of split '{split}' have no "
+                         f"prediction: {_listing(missing)}", pred_dir)
+    extra = sorted(set(pred_paths) - all_gt)
+    if extra:
+        raise InputError(f"{len(extra)} prediction(s) have no ground-truth sequence in {gt_dir}: "
+                         f"{_listing(extra)}", pred_dir)
+    pairs = []
+    for rel in sorted(gt):
+        ph = read_grab_header(pred_paths[rel])
+        _check_headers(pred_paths[rel], ph, gt_dir / rel, gt[rel])
+        pairs.append((rel, ph, gt[rel]))
+    return pairs, len(pred_paths) - len(pairs)
+
+
+def _frames_30fps(h: dict) -> int:
+    return math.ceil(h["n_frames"] / h["step"]) if "step" in h else h["n_frames"]
+
+
+def _check_headers(pred_path: Path, ph: dict, gt_path: Path, gh: dict) -> None:
+    if ph["obj_name"] != gh["obj_name"]:
+        raise InputError(f"object '{ph['obj_name']}', but the ground truth {gt_path} has "
+                         f"'{gh['obj_name']}'", pred_path)
+    np_, ng = _frames_30fps(ph), _frames_30fps(gh)
+    if np_ != ng:
+        raise InputError(f"{np_} frames, but the ground truth {gt_path} has {ng}", pred_path)
+
+
+# ------------------------------------------------------------------ workers
+_LIBRARY = None
+
+
+def _init_worker(gt_dir: str) -> None:
+    """Process-pool initializer: one torch thread and one object library per worker."""
+    import torch
+
+    from ..data.library import ObjectLibrary
+
+    global _LIBRARY
+    torch.set_num_threads(1)
+    _LIBRARY = ObjectLibrary(gt_dir)
+
+
+def run_task(task: Task) -> tuple[list, list, dict]:
+    """Evaluate one pair in this process: (rows, frame rows, failure counts by reason)."""
+    from ..data.grab_io import read_grab
+    from .evaluate import evaluate_sequence
+    from .intersection import FailureCounter
+
+    failures = FailureCounter()
+    pred, gt = read_grab(task.pred), read_grab(task.gt)
+    rows, frames = evaluate_sequence(pred, gt, _LIBRARY, per_frame=task.per_frame,
+                                     options=task.options, labels=task.labels, failures=failures)
+    return rows, frames, dict(failures.reasons)
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="evaluate", unit="seq", disable=not enabled, leave=False)
+
+
+def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool) -> list[tuple]:
+    """Results of ``tasks`` in task order; ``workers`` > 1 uses a spawn process pool."""
+    import torch
+
+    results: list = [None] * len(tasks)
+    bar = _progress(len(tasks), progress)
+    if workers <= 1 or len(tasks) <= 1:
+        threads = torch.get_num_threads()
+        try:  # one thread, as in the workers: the same floating-point path for any --workers
+            _init_worker(str(gt_dir))
+            for i, task in enumerate(tasks):
+                results[i] = run_task(task)
+                bar.update()
+        finally:
+            torch.set_num_threads(threads)
+            bar.close()
+        return results
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                             initializer=_init_worker, initargs=(str(gt_dir),)) as pool:
+        futures = {pool.submit(run_task, t): i for i, t in enumerate(tasks)}
+        try:
+            for fut in as_completed(futures):
+                results[futures[fut]] = fut.result()
+                bar.update()
+        finally:
+            bar.close()
+    return results
+
+
+# ------------------------------------------------------------------ entry point
+def evaluate_dirs(pred_dir, gt_dir, out_dir, *, method: str = "method", metrics=None,
+                  per_frame: bool = False, workers: int = 1, progress: bool = False,
+                  split: str = "test", options: EvalOptions | None = None) -> dict:
+    """Evaluate every prediction of ``pred_dir`` against ``gt_dir``; write to ``out_dir``.
+
+    metrics: ids (None: all registered); workers: processes; split: GT split ("all" for
+    every sequence). Returns the ``evaluation.json`` content. Nothing is written when the
+    folders do not match (:class:`InputError`).
+    """
+    start = time.perf_counter()
+    pred_dir, gt_dir, out_dir = Path(pred_dir), Path(gt_dir), Path(out_dir)
+    options = options or EvalOptions()
+    if metrics is not None:
+        options = EvalOptions(**{**asdict(options), "metrics": tuple(metrics)})
+    options.metric_ids()  # unknown ids fail before any work
+    pairs, ignored = match_sequences(pred_dir, gt_dir, split)
+    pred_manifest = _manifest(pred_dir)
+    labels = RowLabels(method, dataset_name(gt_dir, _manifest(gt_dir)), split,
+                       perturbation_name(pred_manifest))
+    tasks = [Task(str(pred_dir / rel), str(gt_dir / rel), labels, options, per_frame)
+             for rel, _, _ in pairs]
+    results = run_tasks(tasks, gt_dir, max(1, int(workers)), progress)
+    info = _summary(labels, options, pred_dir, gt_dir, pred_manifest, results, ignored)
+    info["wall_time_s"] = round(time.perf_counter() - start, 3)
+    _write_outputs(out_dir, results, per_frame, info)
+    return info
+
+
+def _summary(labels, options, pred_dir, gt_dir, pred_manifest, results, ignored) -> dict:
+    from .. import __version__
+    from ..data.grab_io import dataset_hash
+
+    failures: Counter = Counter()
+    for _, _, f in results:
+        failures.update(f)
+    return {
+        "grip_bench_version": __version__, **asdict(labels),
+        "gt_dir": str(gt_dir.resolve()), "gt_dataset_hash": dataset_hash(gt_dir),
+        "pred_dir": str(pred_dir.resolve()), "pred_manifest": pred_manifest or None,
+        "options": {**asdict(options), "metric_ids": options.metric_ids()},
+        "physics_subsampling": f"MuJoCo tests on at most {options.max_physics_frames} evenly "
+                               "spaced grasp frames per sequence and hand",
+        "n_sequences": len(results), "ignored_predictions_other_split": ignored,
+        "failures": {"count": sum(failures.values()), "reasons": dict(sorted(failures.items()))},
+    }
+
+
+def _write_outputs(out_dir: Path, results, per_frame: bool, info: dict) -> None:
+    from ..bench.cache import atomic_write_text
+    from ..bench.results import write_results
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_results([r for rows, _, _ in results for r in rows], out_dir / "results.csv")
+    if per_frame:
+        write_results([r for _, frames, _ in results for r in frames], out_dir / "frames.csv")
+    text = json.dumps(info, indent=2, sort_keys=True, default=str) + "\n"
+    atomic_write_text(out_dir / "evaluation.json", text)
+
+
+def default_workers() -> int:
+    """Half the CPUs (MuJoCo and manifold3d are single-threaded per sequence), at least 1."""
+    return max(1, (os.cpu_count() or 2) // 2)

@@ -1,0 +1,400 @@
+"""Evaluate one predicted sequence against its ground truth: per hand, per metric (DESIGN 5).
+
+The metric functions of this package are pure; this module feeds them. Per sequence:
+
+1. Both hands of prediction and ground truth are posed once with the ground truth's hand
+   backend (``hand_poser``), so a method is never judged through another hand model.
+2. Hand vertices go into the object's own frame (each sequence's own object trajectory) and
+   get signed distances from the object library's cached field; every distance below
+   ``constants.EVAL_EXACT_BAND`` is recomputed exactly, so all threshold decisions
+   (4.5 mm contact, 2 mm CC, inside) use exact distances.
+3. Ground-truth distances define the masks: a hand's grasp frames are those where its GT mesh
+   is within 4.5 mm of the object; CC vertices are GT vertices within 2 mm.
+4. Each metric yields per-frame SI values on its frame mask; the sequence value is their mean
+   over frames that could be computed (``n_frames``), converted to the report unit by the
+   registry. A metric that cannot be computed is NaN with ``n_frames = 0``, never 0.
+
+Contact drift is measured relative to the ground truth (the closest object points of the
+prediction's contact vertices, minus those of the same GT vertices, followed over frames):
+a method sliding exactly as the ground truth does scores 0, so GT against itself is 0.
+
+Physics (MuJoCo) runs on at most ``EvalOptions.max_physics_frames`` evenly spaced grasp
+frames per sequence and hand (each test costs ~30-50 ms); in frames where both GT hands
+grasp, both predicted hands are in the scene and the test is shared by the two hands.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from .. import constants as C
+from ..bench.results import ResultRow
+from ..errors import InputError
+from .contact import contact_consistency, contact_drift, grasp_mask, in_contact
+from .intersection import FailureCounter, intersection_volume_batch
+from .jitter import acceleration, jitter, jitter_error
+from .penetration import penetration_depth_from_sdf
+from .pose import mpjpe, mpvpe
+from .registry import METRICS
+
+SIDES = ("right", "left")
+PHYSICS_METRICS = ("sim_stable", "sim_disp", "sim_disp_hold")
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """What to compute. ``metrics``: ids (None = every registered metric, registry order);
+    ``iv`` / ``physics``: switch the intersection volume / MuJoCo metrics off wholesale;
+    ``max_physics_frames``: MuJoCo tests per sequence and hand; ``model_path``: MANO /
+    SMPL-X models for ``body_model == "smplx"`` data; ``up``: the world's up axis for gravity
+    (SynthGRAB: y; real GRAB files are z-up: pass (0, 0, 1))."""
+
+    metrics: tuple[str, ...] | None = None
+    max_physics_frames: int = C.EVAL_MAX_PHYSICS_FRAMES
+    iv: bool = True
+    physics: bool = True
+    model_path: str | None = None
+    sides: tuple[str, ...] = SIDES
+    up: tuple[float, float, float] = C.UP
+
+    def metric_ids(self, metrics=None) -> list[str]:
+        """Validated metric ids in registry order; ``metrics`` overrides ``self.metrics``."""
+        wanted = self.metrics if metrics is None else metrics
+        known = list(METRICS.names())
+        if wanted is None:
+            ids = known
+        else:
+            unknown = [m for m in wanted if m not in known]
+            if unknown:
+                raise InputError(f"unknown metric(s) {', '.join(unknown)} (known: {', '.join(known)})",
+                                 "--metrics")
+            ids = [m for m in known if m in set(wanted)]
+        if not self.iv:
+            ids = [m for m in ids if m != "iv"]
+        if not self.physics:
+            ids = [m for m in ids if m not in PHYSICS_METRICS]
+        return ids
+
+
+@dataclass(frozen=True)
+class RowLabels:
+    """The columns of a result row that name the experiment rather than the sequence."""
+
+    method: str = "method"
+    dataset: str = "dataset"
+    split: str = "test"
+    perturbation: str = "none"
+
+
+@dataclass
+class Measured:
+    """One metric of one hand: per-frame SI values on the frames it was evaluated on.
+
+    frames (K,) int, values (K,) SI (NaN = not computable there). ``value`` / ``n_frames``
+    override the mean of the finite values (sequence-level metrics); ``frame_rows`` False
+    keeps the metric out of frames.csv (its value is not a mean of per-frame values).
+    """
+
+    frames: np.ndarray
+    values: np.ndarray
+    value: float | None = None
+    n_frames: int | None = None
+    frame_rows: bool = True
+
+    def summary(self) -> tuple[float, int]:
+        """(sequence value in SI, frames that contributed)."""
+        ok = np.isfinite(self.values)
+        n = int(ok.sum()) if self.n_frames is None else self.n_frames
+        if self.value is not None:
+            return float(self.value), n
+        return (float(self.values[ok].mean()) if ok.any() else float("nan")), n
+
+
+# ------------------------------------------------------------------ per-hand geometry
+def signed_distances(field, local: np.ndarray) -> np.ndarray:
+    """Signed distances (T, V) m of object-frame points (T, V, 3): grid, exact near the surface."""
+    sd = np.asarray(field.signed_distance(local, far="bound"), dtype=np.float64)
+    near = sd < C.EVAL_EXACT_BAND
+    if near.any():
+        sd[near] = field.exact_signed_distance(local[near])
+    return sd
+
+
+@dataclass
+class HandTrack:
+    """One hand of one sequence (prediction or GT), posed: world vertices (T, V, 3), keypoints
+    (T, 21, 3), object-frame vertices (T, V, 3) and signed distances (T, V), metres."""
+
+    verts: np.ndarray
+    joints: np.ndarray
+    local: np.ndarray
+    sd: np.ndarray
+
+
+def hand_track(seq, side: str, poser, library, field) -> HandTrack:
+    """Pose ``side`` of ``seq`` and measure it against the sequence's own object trajectory."""
+    verts, joints = poser.pose(side, seq.hand_params(side))
+    local = library.world_to_object(seq, verts)
+    return HandTrack(verts, joints, local, signed_distances(field, local))
+
+
+class SequencePair:
+    """A prediction and its ground truth, with lazily computed per-hand geometry."""
+
+    def __init__(self, pred, gt, library, options: EvalOptions, failures: FailureCounter):
+        from ..data.posing import hand_poser
+
+        self.pred, self.gt, self.library, self.options = pred, gt, library, options
+        self.failures = failures
+        self.poser = hand_poser(gt, options.model_path)
+        for hand in self.poser.hands.values():
+            hand.double()  # float64 posing: a 5 mm offset measures 5 mm to 1e-9 m, not 1e-7
+        self.mesh = library.mesh(gt.obj_name)
+        self.field = library.field(gt.obj_name)
+        self._tracks: dict[tuple[str, str], HandTrack] = {}
+        self._sims: dict[tuple, object] = {}
+        self._grasp: dict[str, np.ndarray] = {}
+
+    def track(self, who: str, side: str) -> HandTrack:
+        """``who`` is "pred" or "gt"."""
+        key = (who, side)
+        if key not in self._tracks:
+            seq = self.pred if who == "pred" else self.gt
+            self._tracks[key] = hand_track(seq, side, self.poser, self.library, self.field)
+        return self._tracks[key]
+
+    def grasp(self, side: str) -> np.ndarray:
+        """Grasp frames (T,) bool of ``side``: its GT mesh within 4.5 mm of the object."""
+        if side not in self._grasp:
+            self._grasp[side] = grasp_mask(self.track("gt", side).sd, C.CONTACT_THRESHOLD)
+        return self._grasp[side]
+
+    @cached_property
+    def n_frames(self) -> int:
+        return self.gt.n_frames
+
+
+# ------------------------------------------------------------------ metrics
+def _all_frames(pair: SequencePair, values: np.ndarray) -> Measured:
+    return Measured(np.arange(pair.n_frames), np.asarray(values, dtype=np.float64))
+
+
+def _on_grasp(pair: SequencePair, side: str, values: np.ndarray) -> Measured:
+    idx = np.flatnonzero(pair.grasp(side))
+    return Measured(idx, np.asarray(values, dtype=np.float64)[idx])
+
+
+def m_mpjpe(pair: SequencePair, side: str) -> Measured:
+    return _all_frames(pair, mpjpe(pair.track("pred", side).joints, pair.track("gt", side).joints))
+
+
+def m_mpvpe(pair: SequencePair, side: str) -> Measured:
+    return _all_frames(pair, mpvpe(pair.track("pred", side).verts, pair.track("gt", side).verts))
+
+
+def m_cc(pair: SequencePair, side: str) -> Measured:
+    p, g = pair.track("pred", side), pair.track("gt", side)
+    return _on_grasp(pair, side, contact_consistency(p.verts, g.verts, g.sd, C.CC_THRESHOLD))
+
+
+def m_contact_drift(pair: SequencePair, side: str) -> Measured:
+    """Sliding of the prediction's contacts beyond the ground truth's, in the object frame.
+
+    For the vertices the prediction has in contact (its own distances), the exact closest
+    object points of the predicted and of the GT vertex are taken; the metric follows their
+    difference from frame to frame, so a method sliding exactly as the ground truth does (the
+    ground truth itself, or a rigid hold of a rigid GT hold) scores exactly 0.
+    """
+    p, g = pair.track("pred", side), pair.track("gt", side)
+    mask = pair.grasp(side)
+    sel = in_contact(p.sd, C.CONTACT_THRESHOLD) & mask[:, None]
+    rel = np.zeros(p.local.shape)
+    if sel.any():
+        cp_pred = pair.field.closest_points(p.local[sel])[0]
+        cp_gt = pair.field.closest_points(g.local[sel])[0]
+        rel[sel] = cp_pred - cp_gt
+    return _on_grasp(pair, side, contact_drift(p.sd, rel, mask, C.CONTACT_THRESHOLD))
+
+
+def m_iv(pair: SequencePair, side: str) -> Measured:
+    """Exact intersection volume on grasp frames; a hand with no vertex inside is 0 without a
+    boolean (early-out; see ``intersection_volumes``)."""
+    p = pair.track("pred", side)
+    idx = np.flatnonzero(pair.grasp(side))
+    faces = pair.poser.faces(side)
+    return Measured(idx, intersection_volumes(p.local[idx], p.sd[idx], faces, pair.mesh, pair.failures))
+
+
+def intersection_volumes(local: np.ndarray, sd: np.ndarray, faces: np.ndarray, mesh,
+                         failures: FailureCounter | None = None) -> np.ndarray:
+    """Per-frame exact vol(hand & object) m^3 of object-frame hands (K, V, 3) with distances (K, V).
+
+    Frames whose hand has no vertex inside the object (min signed distance > 0) are 0 without
+    a manifold3d boolean: only a feature of the object thinner than the hand's edge length,
+    poking between hand vertices, could intersect them, and its volume is far below what the
+    metric resolves. The rest go through ``intersection_volume_batch`` (object built once).
+    """
+    out = np.zeros(len(local))
+    need = np.flatnonzero(sd.min(axis=1, initial=np.inf) <= 0.0) if len(local) else np.zeros(0, int)
+    if len(need):
+        out[need] = intersection_volume_batch(local[need], faces, mesh, failures=failures)
+    return out
+
+
+def m_pen_depth(pair: SequencePair, side: str) -> Measured:
+    return _on_grasp(pair, side, penetration_depth_from_sdf(pair.track("pred", side).sd))
+
+
+def m_contact_ratio(pair: SequencePair, side: str) -> Measured:
+    touch = grasp_mask(pair.track("pred", side).sd, C.CONTACT_THRESHOLD)
+    return _on_grasp(pair, side, touch.astype(np.float64))
+
+
+def _frame_jitter(verts: np.ndarray, fps: float) -> np.ndarray:
+    """Mean vertex acceleration magnitude (T-2,) m/s^2 at frames 1..T-2."""
+    if len(verts) < 3:
+        return np.zeros(0)
+    return np.linalg.norm(acceleration(verts, fps), axis=-1).mean(axis=-1)
+
+
+def m_jitter(pair: SequencePair, side: str) -> Measured:
+    v = pair.track("pred", side).verts
+    per = _frame_jitter(v, pair.gt.fps)
+    return Measured(np.arange(1, 1 + len(per)), per, value=jitter(v, pair.gt.fps))
+
+
+def m_jitter_err(pair: SequencePair, side: str) -> Measured:
+    """|jitter(pred) - jitter(GT)| of the sequence: not a mean of per-frame values (no frame rows)."""
+    p, g = pair.track("pred", side).verts, pair.track("gt", side).verts
+    n = max(len(p) - 2, 0)
+    return Measured(np.zeros(0, int), np.zeros(0), value=jitter_error(p, g, pair.gt.fps),
+                    n_frames=n, frame_rows=False)
+
+
+# ------------------------------------------------------------------ physics
+def physics_frames(grasp: np.ndarray, k: int) -> np.ndarray:
+    """At most ``k`` evenly spaced frame indices among the True entries of ``grasp`` (T,)."""
+    idx = np.flatnonzero(grasp)
+    if len(idx) <= k:
+        return idx
+    return idx[np.unique(np.round(np.linspace(0, len(idx) - 1, k)).astype(int))]
+
+
+def _hand_mesh(pair: SequencePair, side: str, t: int):
+    """The predicted hand at frame ``t`` (world) with per-vertex bone ids for per-bone hulls."""
+    import trimesh
+
+    verts = pair.track("pred", side).verts[t]
+    m = trimesh.Trimesh(verts, pair.poser.faces(side), process=False)
+    m.metadata["bone_ids"] = _bone_ids(pair.poser, side, len(verts))
+    return m
+
+
+def _bone_ids(poser, side: str, n_verts: int) -> np.ndarray:
+    """Skinning bone of each vertex (V,): the procedural hand's, or MANO's argmax weight (the
+    sealing centres of MANO's wrist go to the wrist bone)."""
+    hand = poser.hands[side]
+    ids = getattr(hand, "bone_ids", None)
+    if ids is None:
+        ids = hand.layer.lbs_weights.argmax(dim=1)
+    ids = np.asarray(ids.cpu().numpy() if hasattr(ids, "cpu") else ids)
+    return np.concatenate([ids, np.zeros(n_verts - len(ids), ids.dtype)])
+
+
+def simulate_frame(pair: SequencePair, t: int, protocol: str):
+    """MuJoCo stability of frame ``t`` with every predicted hand that grasps there (GT mask),
+    cached per (frame, protocol) so a bimanual frame is simulated once for both hands."""
+    from .physics import convex_decomposition, stability
+
+    key = (t, protocol)
+    if key not in pair._sims:
+        sides = [s for s in pair.options.sides if pair.grasp(s)[t]]
+        hands = [_hand_mesh(pair, s, t) for s in sides]
+        R = pair.pred.object_rotations()[t]
+        pose = (R.T, np.asarray(pair.pred.object["transl"][t], float))  # world = R^T local + t
+        res = stability(hands, pair.mesh, protocol, obj_pose=pose, up=pair.options.up,
+                        obj_pieces=convex_decomposition(pair.mesh))
+        if res.diverged:
+            pair.failures.add(f"simulation diverged ({protocol})")
+        pair._sims[key] = res
+    return pair._sims[key]
+
+
+def _sim(pair: SequencePair, side: str, protocol: str, attr: str) -> Measured:
+    idx = physics_frames(pair.grasp(side), pair.options.max_physics_frames)
+    vals = [getattr(simulate_frame(pair, int(t), protocol), attr) for t in idx]
+    return Measured(idx, np.asarray(vals, dtype=np.float64))
+
+
+def m_sim_stable(pair: SequencePair, side: str) -> Measured:
+    """Share of tested grasp frames stable under the paper protocol (a diverged run is unstable)."""
+    return _sim(pair, side, "paper", "stable")
+
+
+def m_sim_disp(pair: SequencePair, side: str) -> Measured:
+    return _sim(pair, side, "paper", "displacement")
+
+
+def m_sim_disp_hold(pair: SequencePair, side: str) -> Measured:
+    return _sim(pair, side, "hold", "displacement")
+
+
+METRIC_FUNCS = {
+    "mpjpe": m_mpjpe, "mpvpe": m_mpvpe, "cc": m_cc, "contact_drift": m_contact_drift,
+    "iv": m_iv, "pen_depth": m_pen_depth, "contact_ratio": m_contact_ratio,
+    "sim_stable": m_sim_stable, "sim_disp": m_sim_disp, "sim_disp_hold": m_sim_disp_hold,
+    "jitter": m_jitter, "jitter_err": m_jitter_err,
+}
+
+
+# ------------------------------------------------------------------ rows
+def check_pair(pred, gt) -> None:
+    """Same object and frame count, or an :class:`InputError` naming the prediction's file."""
+    where = str(pred.source or pred.name)
+    if pred.obj_name != gt.obj_name:
+        raise InputError(f"object '{pred.obj_name}', but the ground truth "
+                         f"{gt.source or gt.name} has '{gt.obj_name}'", where)
+    if pred.n_frames != gt.n_frames:
+        raise InputError(f"{pred.n_frames} frames, but the ground truth "
+                         f"{gt.source or gt.name} has {gt.n_frames}", where)
+
+
+def _rows(labels: RowLabels, gt, side: str, metric: str, m: Measured, per_frame: bool):
+    spec = METRICS.get(metric)
+    base = dict(method=labels.method, dataset=labels.dataset, split=labels.split,
+                perturbation=labels.perturbation, sequence=gt.name, object=gt.obj_name,
+                hand=side, metric=metric, unit=spec.unit)
+    value, n = m.summary()
+    row = ResultRow(**base, value=spec.to_report(value), n_frames=n)
+    frames = []
+    if per_frame and m.frame_rows:
+        frames = [ResultRow(**base, value=spec.to_report(float(v)), n_frames=int(np.isfinite(v)),
+                            frame=int(t)) for t, v in zip(m.frames, m.values, strict=True)]
+    return row, frames
+
+
+def evaluate_sequence(pred, gt, library, *, metrics=None, per_frame: bool = False,
+                      options: EvalOptions = EvalOptions(), labels: RowLabels = RowLabels(),
+                      failures: FailureCounter | None = None
+                      ) -> tuple[list[ResultRow], list[ResultRow]]:
+    """All requested metrics of both hands of one predicted sequence against its ground truth.
+
+    pred, gt: :class:`~grip_bench.data.sequence.Sequence` (same object and frame count);
+    library: :class:`~grip_bench.data.library.ObjectLibrary` of the GT data; metrics: ids
+    (None: ``options.metrics``, else all); failures: counter the IV and physics failures are
+    added to. Returns (result rows, per-frame rows; empty unless ``per_frame``), values in
+    report units, rows in (hand, registry metric) order.
+    """
+    check_pair(pred, gt)
+    ids = options.metric_ids(metrics)
+    pair = SequencePair(pred, gt, library, options, failures if failures is not None else FailureCounter())
+    rows, frame_rows = [], []
+    for side in options.sides:
+        for metric in ids:
+            row, frames = _rows(labels, gt, side, metric, METRIC_FUNCS[metric](pair, side), per_frame)
+            rows.append(row)
+            frame_rows.extend(frames)
+    return rows, frame_rows

@@ -1,0 +1,268 @@
+"""`grip-bench run` and `grip-bench report`: layout of OUT, reuse, kill-and-resume, re-rendering.
+
+A test-only profile (written below, passed by path) runs the fixed reference methods on
+the tiniest SynthGRAB data (generated once per session and passed with --data), with the
+cheap metrics only, so the whole module takes well under a minute of CPU.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from grip_bench.bench.tables import TABLES
+from grip_bench.cli.main import main
+
+REPO = Path(__file__).resolve().parents[2]
+METHODS = ["gt", "flat-input", "mean-pose", "perturbed-input"]
+PERTURBATIONS = ["T0.01", "R0.3"]
+METRICS = ["mpjpe", "mpvpe", "cc", "contact_ratio"]
+FORMATS = ("md", "csv", "tex", "html")
+KINDS = ("dataset", "perturbed", "prediction", "metrics", "runtime")
+# units of the tiny run: 1 dataset, 2 perturbed sets, 4 clean + 2 perturbed predictions
+# (perturbed-input is Table 3's "before" row), as many metric sets, 4 runtime units
+N_UNITS = 1 + 2 + 6 + 6 + 4
+
+PROFILE = f"""
+[run]
+data = "synth"
+synth_profile = "tiny"
+data_seed = 0
+dataset = ""
+tables = ["table3_perturbation", "table4_grasp", "runtime"]
+methods = {json.dumps(METHODS)}
+extra_methods = []
+perturbations = {json.dumps(PERTURBATIONS)}
+perturb_seed = 0
+seed = 0
+metrics = {json.dumps(METRICS)}
+per_frame = true
+device = "cpu"
+bootstrap_seed = 0
+bootstrap_n = 200
+runtime_sequences = 1
+runtime_repeats = 2
+figure_methods = ["mean-pose"]
+"""
+
+
+# --- fixtures --------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """(profile file, data folder): the test profile and the tiniest SynthGRAB data."""
+    from grip_bench.data.synth.generate import generate
+
+    root = tmp_path_factory.mktemp("run")
+    profile = root / "tiny_run.toml"
+    profile.write_text(PROFILE, encoding="utf-8")
+    generate(root / "data", profile="tiny", seed=0, workers=1, progress=False)
+    return profile, root / "data"
+
+
+def _args(tiny, out, *extra) -> list[str]:
+    profile, data = tiny
+    return ["run", "--profile", str(profile), "--data", str(data), "--out", str(out),
+            "--workers", "1", "--quiet", *extra]
+
+
+@pytest.fixture(scope="module")
+def finished(tiny, tmp_path_factory):
+    """OUT of one uninterrupted run."""
+    out = tmp_path_factory.mktemp("out") / "a"
+    assert main(_args(tiny, out)) == 0
+    return out
+
+
+def _units(out: Path) -> list[Path]:
+    """Finished units: cache/<kind>/<hh>/<key>/unit.json (temp folders are hidden)."""
+    return sorted(p.parent for p in (out / "cache").glob("*/*/*/unit.json")
+                  if not p.parts[-4].startswith("."))
+
+
+def _snapshot(folder: Path) -> list[tuple]:
+    return sorted((p.relative_to(folder).as_posix(), p.stat().st_mtime_ns)
+                  for p in folder.rglob("*") if p.is_file())
+
+
+def _csv(path: Path) -> list[dict]:
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+# --- layout ----------------------------------------------------------------------------------
+def test_run_writes_the_documented_layout(finished):
+    out = finished
+    for name in ("results.csv", "frames.csv", "runtime.csv", "leaderboard.csv", "leaderboard.md",
+                 "leaderboard.html", "manifest.json", "run.log"):
+        assert (out / name).is_file(), name
+    for spec in TABLES:
+        for fmt in FORMATS:
+            assert (out / "tables" / f"{spec.id}.{fmt}").is_file(), (spec.id, fmt)
+    kinds = sorted({u.parts[-3] for u in _units(out)})
+    assert kinds == sorted(KINDS)  # no checkpoint: the reference methods do not train
+    assert len(_units(out)) == N_UNITS
+    assert not any((out / "cache" / ".tmp").iterdir())
+
+
+def test_results_cover_methods_perturbations_and_metrics(finished):
+    rows = _csv(finished / "results.csv")
+    assert list(rows[0]) == ["method", "dataset", "split", "perturbation", "sequence", "object",
+                             "hand", "metric", "value", "unit", "n_frames"]
+    pairs = {(r["method"], r["perturbation"]) for r in rows}
+    assert pairs == {(m, "none") for m in METHODS} | {("perturbed-input", p) for p in PERTURBATIONS}
+    assert {r["metric"] for r in rows} == set(METRICS)
+    assert {r["dataset"] for r in rows} == {"synthgrab"}
+    assert {r["split"] for r in rows} == {"test"}
+    gt = [float(r["value"]) for r in rows if r["method"] == "gt" and r["metric"] == "mpvpe"]
+    assert gt and all(v == 0.0 for v in gt)  # metric sanity row
+    frames = _csv(finished / "frames.csv")
+    assert "frame" in frames[0] and {r["method"] for r in frames} == set(METHODS)
+
+
+def test_runtime_leaderboard_and_manifest(finished):
+    runtime = _csv(finished / "runtime.csv")
+    assert {r["method"] for r in runtime} == set(METHODS)
+    assert {r["mode"] for r in runtime} == {"offline"}
+    assert all(float(r["seconds_per_frame"]) > 0 for r in runtime)
+    lb = _csv(finished / "leaderboard.csv")
+    assert list(lb[0]) == ["method", "metric", "hand", "value", "ci_low", "ci_high", "unit",
+                           "higher_is_better", "n_sequences"]
+    assert {r["method"] for r in lb} == set(METHODS)
+    assert "<table" in (finished / "leaderboard.html").read_text(encoding="utf-8")
+    man = json.loads((finished / "manifest.json").read_text(encoding="utf-8"))
+    for key in ("versions", "git", "profile", "config", "seeds", "data_hash", "stage_times"):
+        assert key in man, key
+    assert set(man["stage_times"]) >= {"data", "perturb", "train", "predict", "evaluate",
+                                       "runtime", "report", "total"}
+    assert man["config"]["methods"] == METHODS
+    assert man["config"]["report"]["bootstrap_n"] == 200
+    assert len(man["data_hash"]) == 64
+
+
+# --- reuse -----------------------------------------------------------------------------------
+def test_second_run_reuses_everything(finished, tiny, capsys):
+    before = _snapshot(finished / "cache")
+    results = (finished / "results.csv").read_bytes()
+    assert main(_args(tiny, finished)) == 0
+    out = capsys.readouterr().out
+    assert f"reused {N_UNITS} of {N_UNITS} units" in out
+    assert _snapshot(finished / "cache") == before  # nothing recomputed or rewritten
+    assert (finished / "results.csv").read_bytes() == results
+
+
+def test_dry_run_lists_the_plan(finished, tiny, capsys):
+    assert main(_args(tiny, finished, "--dry-run")) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == N_UNITS and all(line.startswith("[cached]") for line in lines)
+    assert any("predict perturbed-input @ R0.3" in line for line in lines)
+
+
+# --- report ----------------------------------------------------------------------------------
+def _report_files(out: Path) -> dict[str, bytes]:
+    files = [*(out / "tables").glob("*"), *out.glob("leaderboard.*")]
+    if (out / "figures").is_dir():
+        files += [p for p in (out / "figures").rglob("*") if p.is_file()]
+    return {p.relative_to(out).as_posix(): p.read_bytes() for p in files}
+
+
+def test_report_rerenders_the_same_bytes(finished, tmp_path, capsys):
+    copy = tmp_path / "copy"
+    shutil.copytree(finished, copy, ignore=shutil.ignore_patterns("cache"))
+    expected = _report_files(finished)
+    shutil.rmtree(copy / "tables")
+    for p in copy.glob("leaderboard.*"):
+        p.unlink()
+    assert main(["report", str(copy)]) == 0  # without the cache: nothing is recomputed
+    assert _report_files(copy) == expected
+
+
+def test_report_needs_results(tmp_path, capsys):
+    assert main(["report", str(tmp_path)]) == 1
+    assert "results.csv" in capsys.readouterr().err
+
+
+# --- interrupted runs ------------------------------------------------------------------------
+def _start(tiny, out: Path) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.Popen([sys.executable, "-m", "grip_bench", *_args(tiny, out)], cwd=REPO,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def _stop_after(proc: subprocess.Popen, out: Path, n_units: int, sig: int) -> int:
+    """Send ``sig`` once ``n_units`` units are finished; the process's exit code."""
+    while len(_units(out)) < n_units and proc.poll() is None:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run finished before it could be interrupted"
+    proc.send_signal(sig)
+    proc.communicate(timeout=120)
+    return proc.returncode
+
+
+def test_killed_run_resumes_to_identical_results(finished, tiny, tmp_path, capsys):
+    out = tmp_path / "b"
+    # SIGTERM: a clean stop (exit 130) that leaves no unfinished unit behind
+    assert _stop_after(_start(tiny, out), out, 2, signal.SIGTERM) == 130
+    assert not any((out / "cache" / ".tmp").iterdir())
+    # SIGKILL in the middle of the predictions: no cleanup at all
+    done = len(_units(out))
+    assert _stop_after(_start(tiny, out), out, done + 5, signal.SIGKILL) == -signal.SIGKILL
+    assert not (out / "results.csv").exists()
+    assert main(_args(tiny, out)) == 0
+    assert "reused" in capsys.readouterr().out
+    assert (out / "results.csv").read_bytes() == (finished / "results.csv").read_bytes()
+    assert (out / "frames.csv").read_bytes() == (finished / "frames.csv").read_bytes()
+    assert not any((out / "cache" / ".tmp").iterdir())  # the killed writer's folder is gone
+
+
+# --- errors ----------------------------------------------------------------------------------
+def test_paper_profile_needs_data(tmp_path, capsys):
+    assert main(["run", "--profile", "paper", "--out", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: --data:") and "GRAB" in err
+
+
+def test_unknown_method_and_table_are_input_errors(tiny, tmp_path, capsys):
+    assert main(_args(tiny, tmp_path, "--methods", "no-such-method", "--dry-run")) == 1
+    assert "unknown method 'no-such-method'" in capsys.readouterr().err
+    assert main(_args(tiny, tmp_path, "--tables", "table9", "--dry-run")) == 1
+    assert "unknown table 'table9'" in capsys.readouterr().err
+
+
+def test_unknown_profile_is_an_input_error(tmp_path, capsys):
+    assert main(["run", "--profile", "nope", "--out", str(tmp_path)]) == 1
+    assert "profile" in capsys.readouterr().err
+
+
+# --- the smoke profile -----------------------------------------------------------------------
+@pytest.mark.slow
+def test_smoke_profile_end_to_end(tmp_path, capsys):
+    """The real thing at smoke size: SynthGRAB generation, GRIP training, every table."""
+    from grip_bench.bench.methods import load_all
+
+    out = tmp_path / "smoke"
+    assert main(["run", "--profile", "smoke", "--out", str(out), "--quiet"]) == 0
+    assert "cache: reused 0 of" in capsys.readouterr().out
+    for spec in TABLES:
+        for fmt in FORMATS:
+            assert (out / "tables" / f"{spec.id}.{fmt}").is_file()
+    rows = _csv(out / "results.csv")
+    methods = {r["method"] for r in rows}
+    registered = set(load_all().names())
+    assert {"gt", "grip", "grip-no-rnet"} <= methods <= registered
+    assert {r["perturbation"] for r in rows if r["method"] == "grip"} == \
+        {"none", "T0.01", "T0.02", "R0.3", "R0.5"}
+    assert {"checkpoint", "dataset", "metrics", "perturbed", "prediction", "runtime"} == \
+        {u.parts[-3] for u in _units(out)}
+    runtime = _csv(out / "runtime.csv")
+    assert {"offline", "online"} == {r["mode"] for r in runtime if r["method"] == "grip"}
+    man = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
+    assert man["config"]["profile_name"] == "smoke" and man["profile"]["grip"]["hidden"] > 0

@@ -1,0 +1,190 @@
+"""Baseline methods: registration, profile sections, and the small pieces they are built from."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from grip_bench.bench.methods import METHOD_MODULES, load_all
+from grip_bench.errors import InputError
+
+NAMES = {
+    "grabnet": ("table4_grasp",),
+    "grabnet-smplx": ("table4_grasp",),
+    "manipnet": ("table4_grasp",),
+    "toch": ("table3_perturbation",),
+    "nearest-neighbour": (),
+}
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.mark.parametrize("name,tables", NAMES.items())
+def test_methods_are_registered(name, tables):
+    spec = load_all().get(name)
+    assert spec.tables == tables and spec.trainable
+    assert spec.description and "\n" not in spec.description
+    assert "object" in spec.needs
+    assert name in spec.describe()
+
+
+def test_method_modules_listed():
+    for module in ("grabnet_method", "toch_method", "manipnet_method", "nearest"):
+        assert f"grip_baselines.{module}" in METHOD_MODULES
+
+
+def test_needs_match_what_the_methods_read():
+    methods = load_all()
+    assert "noisy_hands" in methods.get("toch").needs
+    assert "body" in methods.get("grabnet-smplx").needs
+    assert "train_data" in methods.get("nearest-neighbour").needs
+
+
+@pytest.mark.parametrize("profile", ["smoke", "default", "paper"])
+def test_profiles_carry_every_train_config_field(profile):
+    import dataclasses
+
+    from grip_baselines.common import section_config
+    from grip_baselines.grabnet_method import GrabNetTrainConfig
+    from grip_baselines.manipnet_method import ManipNetTrainConfig
+    from grip_baselines.nearest import NearestTrainConfig
+    from grip_baselines.toch_method import TochTrainConfig
+
+    from grip_bench.profiles import load_profile
+
+    p = load_profile(profile)
+    for section, cls in (("grabnet", GrabNetTrainConfig), ("toch", TochTrainConfig),
+                         ("manipnet", ManipNetTrainConfig), ("nearest", NearestTrainConfig)):
+        assert set(p[section]) == {f.name for f in dataclasses.fields(cls)}
+        section_config(cls, p, section)
+
+
+def test_default_profile_matches_config_defaults():
+    import dataclasses
+
+    from grip_baselines.grabnet_method import GrabNetTrainConfig
+    from grip_baselines.manipnet_method import ManipNetTrainConfig
+    from grip_baselines.nearest import NearestTrainConfig
+    from grip_baselines.toch_method import TochTrainConfig
+
+    from grip_bench.profiles import load_profile
+
+    p = load_profile("default")
+    for section, cls in (("grabnet", GrabNetTrainConfig), ("toch", TochTrainConfig),
+                         ("manipnet", ManipNetTrainConfig), ("nearest", NearestTrainConfig)):
+        for f in dataclasses.fields(cls):
+            assert p[section][f.name] == pytest.approx(getattr(cls(), f.name), rel=1e-3), f.name
+
+
+def test_section_config_rejects_unknown_keys():
+    from grip_baselines.common import section_config
+    from grip_baselines.grabnet_method import GrabNetTrainConfig
+
+    assert section_config(GrabNetTrainConfig, {}, "grabnet") == GrabNetTrainConfig()
+    assert section_config(GrabNetTrainConfig, {"grabnet": {"width": 8}}, "grabnet").width == 8
+    with pytest.raises(InputError, match="widht"):
+        section_config(GrabNetTrainConfig, {"grabnet": {"widht": 8}}, "grabnet")
+
+
+def test_mirror_pose_is_the_hand_mirror():
+    from grip_baselines.common import mirror_pose
+
+    from grip_bench.bodies.hand import ProceduralHand
+
+    rng = np.random.default_rng(0)
+    pose = rng.normal(0, 0.3, size=(2, 45))
+    np.testing.assert_allclose(mirror_pose(mirror_pose(pose)), pose)
+    # The left hand at the mirrored pose is the x-mirror of the right hand.
+    right, left = ProceduralHand("right"), ProceduralHand("left")
+    with torch.no_grad():
+        vr = right(None, torch.tensor(pose, dtype=torch.float32).reshape(2, 15, 3), None)[0]
+        vl = left(None, torch.tensor(mirror_pose(pose), dtype=torch.float32).reshape(2, 15, 3), None)[0]
+    np.testing.assert_allclose(vl.numpy(), vr.numpy() * [-1, 1, 1], atol=1e-5)
+
+
+def test_bps_codes_agree_with_bps_encode_under_rotation():
+    from grip_baselines.bps import basis_points, bps_encode, object_centre
+    from grip_baselines.grabnet_method import bps_codes
+
+    class Lib:
+        def mesh(self, name):
+            return box
+
+    box = trimesh.creation.box(extents=(0.08, 0.03, 0.05))
+    box.apply_translation([0.01, 0.02, -0.01])
+    basis = basis_points(50, 0.15, seed=2)
+    Q = Rotation.random(3, random_state=1).as_matrix()
+    c = object_centre(box)
+    # Model frame = the object rotated by Q about its centre: x = c + Q^T y.
+    got = bps_codes(Lib(), ["box"], np.zeros(3, int), np.transpose(Q, (0, 2, 1)),
+                    np.tile(c, (3, 1)), basis, (0.0, 0.0, 0.0))
+    np.testing.assert_allclose(got, bps_encode(box, basis, rotations=Q), atol=1e-12)
+
+
+def test_windows_of_cuts_runs():
+    from grip_baselines.toch_method import windows_of
+
+    mask = np.array([0, 1, 1, 1, 1, 1, 0, 0, 1, 1], bool)
+    got = [w.tolist() for w in windows_of(mask, 3)]
+    assert got == [[1, 2, 3], [4, 5], [8, 9]]
+    assert windows_of(np.zeros(4, bool), 3) == []
+
+
+def test_vertex_subset_and_batches():
+    from grip_baselines.common import batches, vertex_subset
+
+    class H:
+        num_vertices = 10
+
+    assert vertex_subset(H(), 0).tolist() == list(range(10))
+    assert len(vertex_subset(H(), 4)) == 4
+    parts = batches(9, 4, np.random.default_rng(0))
+    assert sorted(np.concatenate(parts).tolist()) == list(range(9))
+    assert min(len(p) for p in parts) >= 2  # never a batch of one (BatchNorm)
+
+
+def test_nearest_index_retrieves_its_own_items():
+    from grip_baselines.nearest import build_index
+
+    rng = np.random.default_rng(0)
+    feats = rng.normal(size=(40, 12))
+    poses = rng.normal(size=(40, 45))
+    index = build_index(feats, poses, 12)  # full rank: distances are preserved
+    from scipy.spatial import cKDTree
+
+    _, nn = cKDTree(index.keys.numpy()).query(index.reduce(feats[[3, 17]]))
+    assert nn.tolist() == [3, 17]
+    cfg = index.cfg
+    assert (cfg.n_items, cfg.feat_dim, cfg.n_components) == (40, 12, 12)
+
+
+def test_grabnet_refinenet_noise_leaves_tied_wrist_alone():
+    from grip_baselines.grabnet_method import GrabNetTrainConfig, _noisy, pin_wrist, to_grasp
+
+    g = to_grasp(np.tile(np.eye(3), (4, 1, 1)), np.zeros((4, 3)), np.zeros((4, 45)))
+    gen = torch.Generator().manual_seed(0)
+    tied = _noisy(g, GrabNetTrainConfig(), True, gen)
+    torch.testing.assert_close(tied.global_orient, g.global_orient)
+    torch.testing.assert_close(tied.transl, g.transl)
+    assert not torch.allclose(tied.hand_pose, g.hand_pose)
+    free = _noisy(g, GrabNetTrainConfig(), False, gen)
+    assert not torch.allclose(free.transl, g.transl)
+    pinned = pin_wrist(free)
+    torch.testing.assert_close(pinned.global_orient, g.global_orient)
+    torch.testing.assert_close(pinned.transl, g.transl)
+
+
+def test_untrained_method_refuses_to_predict():
+    methods = load_all()
+    for name in NAMES:
+        with pytest.raises(InputError, match="load a checkpoint"):
+            methods.get(name).build().predict(None, None)

@@ -1,0 +1,171 @@
+"""Per-sequence evaluation: exact zeros for GT vs itself, known offsets, NaN (never 0) when a
+metric cannot be computed, per-frame rows consistent with the sequence values."""
+
+import math
+
+import numpy as np
+import pytest
+
+from grip_bench.data.grab_io import read_grab
+from grip_bench.data.library import ObjectLibrary
+from grip_bench.errors import InputError
+from grip_bench.metrics import evaluate as E
+from grip_bench.metrics import intersection as I
+from grip_bench.metrics.aggregate import dataset_name, perturbation_name
+from tests.eval_fixtures import grasp_dataset
+
+FAST = E.EvalOptions(physics=False)
+POSE_CONTACT = ["mpjpe", "mpvpe", "cc", "contact_drift", "contact_ratio", "jitter_err"]
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """(library, {family: GT sequence}): a one-handed mug lift and a two-handed cylinder pass."""
+    root = tmp_path_factory.mktemp("evaldata")
+    files = grasp_dataset(root, T=16)
+    seqs = {read_grab(f).obj_name: read_grab(f) for f in files}
+    return ObjectLibrary(root), seqs
+
+
+def _by(rows):
+    return {(r.hand, r.metric): r for r in rows}
+
+
+def test_ground_truth_against_itself_is_exactly_zero(data):
+    lib, seqs = data
+    for gt in seqs.values():
+        rows, _ = E.evaluate_sequence(gt, gt.copy(), lib, options=E.EvalOptions(max_physics_frames=2))
+        got = _by(rows)
+        for side in ("right", "left"):
+            assert got[side, "mpjpe"].value == 0.0 and got[side, "mpvpe"].value == 0.0
+            assert got[side, "jitter_err"].value == 0.0
+        right = {m: got["right", m] for m in ("cc", "contact_drift", "contact_ratio", "iv", "sim_stable")}
+        assert right["cc"].value == 0.0 and right["cc"].n_frames > 0
+        assert right["contact_drift"].value == 0.0 and right["contact_drift"].n_frames > 0
+        assert right["contact_ratio"].value == 100.0
+        assert right["iv"].n_frames > 0 and right["sim_stable"].n_frames == 2
+        assert {r.unit for r in rows if r.metric == "iv"} == {"cm3"}
+
+
+def test_translated_right_hand_measures_exactly_5mm(data):
+    lib, seqs = data
+    for gt in seqs.values():
+        pred = gt.copy()
+        pred.rhand["transl"] = pred.rhand["transl"] + 0.005 * np.array([1.0, 2.0, 2.0]) / 3.0
+        got = _by(E.evaluate_sequence(pred, gt, lib, metrics=["mpjpe", "mpvpe", "cc"])[0])
+        for m in ("mpjpe", "mpvpe", "cc"):
+            assert got["right", m].value == pytest.approx(5.0, abs=1e-6)
+        assert got["left", "mpjpe"].value == 0.0 and got["left", "mpvpe"].value == 0.0
+
+
+def test_a_hand_that_never_grasps_gets_nan_not_zero(data):
+    lib, seqs = data
+    gt = seqs["mug"]  # the left hand stays parked far from the mug
+    got = _by(E.evaluate_sequence(gt, gt, lib, options=FAST)[0])
+    for m in ("cc", "contact_drift", "iv", "pen_depth", "contact_ratio"):
+        assert math.isnan(got["left", m].value) and got["left", m].n_frames == 0
+
+
+def test_per_frame_rows_average_to_the_sequence_value(data):
+    lib, seqs = data
+    gt = seqs["cylindermedium"]
+    pred = gt.copy()
+    pred.lhand["transl"] = pred.lhand["transl"] + np.array([0.0, -0.003, 0.002])
+    rows, frames = E.evaluate_sequence(pred, gt, lib, per_frame=True, options=FAST)
+    for r in rows:
+        vals = [f.value for f in frames if (f.hand, f.metric) == (r.hand, r.metric)]
+        if r.metric == "jitter_err":
+            assert vals == []
+            continue
+        finite = [v for v in vals if not math.isnan(v)]
+        assert len(finite) == r.n_frames
+        if finite:
+            assert np.mean(finite) == pytest.approx(r.value, rel=1e-9, abs=1e-12)
+    assert all(f.frame is not None for f in frames)
+
+
+def test_sliding_against_a_turning_object_shows_as_drift(data):
+    """A hand fixed in the world while the object turns under it slides: drift > 0."""
+    lib, seqs = data
+    gt = seqs["mug"]
+    pred = gt.copy()
+    pred.rhand["transl"] = pred.rhand["transl"] + np.array([0.0, 0.0, 0.004])
+    got = _by(E.evaluate_sequence(pred, gt, lib, metrics=["contact_drift"])[0])
+    assert got["right", "contact_drift"].value > 0.01  # mm per frame
+
+
+def test_pushing_the_hand_in_raises_iv_and_penetration(data):
+    lib, seqs = data
+    gt = seqs["cylindermedium"]
+    base = _by(E.evaluate_sequence(gt, gt, lib, metrics=["iv", "pen_depth"])[0])
+    pred = gt.copy()
+    mesh = lib.mesh(gt.obj_name)
+    centre = gt.object_vertices(np.asarray(mesh.bounding_box.centroid)[None])[:, 0]
+    wrist = pred.rhand["transl"]
+    pred.rhand["transl"] = wrist + 0.004 * (centre - wrist) / np.linalg.norm(centre - wrist, axis=1, keepdims=True)
+    got = _by(E.evaluate_sequence(pred, gt, lib, metrics=["iv", "pen_depth"])[0])
+    assert got["right", "iv"].value > base["right", "iv"].value
+    assert got["right", "pen_depth"].value > base["right", "pen_depth"].value
+
+
+def test_iv_early_out_equals_the_boolean(data):
+    """Frames skipped because no hand vertex is inside really have zero volume."""
+    lib, seqs = data
+    gt = seqs["mug"]
+    pair = E.SequencePair(gt, gt, lib, FAST, I.FailureCounter())
+    t = pair.track("gt", "right")
+    faces, mesh = pair.poser.faces("right"), lib.mesh(gt.obj_name)
+    fast = E.intersection_volumes(t.local, t.sd, faces, mesh)
+    full = I.intersection_volume_batch(t.local, faces, mesh)
+    skipped = t.sd.min(axis=1) > 0
+    assert skipped.any() and (~skipped).any()
+    np.testing.assert_array_equal(fast, full)
+
+
+def test_warped_hand_manifolds_match_fresh_builds(data):
+    lib, seqs = data
+    gt = seqs["cylindermedium"]
+    pair = E.SequencePair(gt, gt, lib, FAST, I.FailureCounter())
+    local, faces = pair.track("gt", "left").local, pair.poser.faces("left")
+    mesh = lib.mesh(gt.obj_name)
+    origin = np.asarray(mesh.vertices).mean(axis=0)
+    obj = I.to_manifold(mesh.vertices, mesh.faces, origin)
+    posed = I._PosedManifolds(faces, origin)
+    for v in local[::3]:
+        warped = posed.at(v)
+        fresh = I.to_manifold(v, faces, origin)
+        assert (warped ^ obj).volume() == pytest.approx((fresh ^ obj).volume(), rel=1e-12, abs=1e-18)
+    assert posed.perm is not None  # the warp path was really taken
+
+
+def test_physics_frames_are_evenly_spaced_grasp_frames():
+    mask = np.zeros(40, bool)
+    mask[10:30] = True
+    np.testing.assert_array_equal(E.physics_frames(mask, 3), [10, 20, 29])  # 9.5 rounds to even
+    assert len(E.physics_frames(mask, 50)) == 20 and len(E.physics_frames(mask, 0)) == 0
+
+
+def test_metric_selection_and_errors(data):
+    lib, seqs = data
+    gt = seqs["mug"]
+    rows, _ = E.evaluate_sequence(gt, gt, lib, metrics=["jitter", "mpjpe"])
+    assert [r.metric for r in rows] == ["mpjpe", "jitter"] * 2  # registry order, per hand
+    assert "iv" not in E.EvalOptions(iv=False).metric_ids()
+    assert not set(E.PHYSICS_METRICS) & set(E.EvalOptions(physics=False).metric_ids())
+    with pytest.raises(InputError, match="unknown metric"):
+        E.EvalOptions(metrics=("mpjpe", "nope")).metric_ids()
+    short = gt.frames(0, 10)
+    with pytest.raises(InputError, match="10 frames, but the ground truth"):
+        E.evaluate_sequence(short, gt, lib)
+    other = gt.copy()
+    other.obj_name = "cylindermedium"
+    with pytest.raises(InputError, match="object 'cylindermedium'"):
+        E.evaluate_sequence(other, gt, lib)
+
+
+def test_labels_from_manifests(tmp_path):
+    assert dataset_name(tmp_path, {"generator": "SynthGRAB", "version": "1"}) == "synthgrab"
+    assert dataset_name(tmp_path / "mydata", {}) == "mydata"
+    assert perturbation_name({"perturbation": "T0.01"}) == "T0.01"
+    assert perturbation_name({"generator": "grip_bench.data.perturb", "kind": "R", "sigma": 0.3}) == "R0.3"
+    assert perturbation_name({}) == "none"
