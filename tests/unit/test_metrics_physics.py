@@ -42,7 +42,8 @@ def test_ball_rests_in_a_bowl_only_when_the_bowl_is_decomposed():
     shell = m3.Manifold.sphere(0.05, 64) - m3.Manifold.sphere(0.045, 64)
     bowl = from_manifold(shell.trim_by_plane(list(-UP), 0.0))
     ball = trimesh.creation.icosphere(3, radius=0.02)
-    pose = (np.eye(3), -UP * (0.045 - 0.02))  # resting on the bottom of the inside
+    # resting on the bottom of the inside, at the contact margin (skin compliance)
+    pose = (np.eye(3), -UP * (0.045 - 0.02 - C.SIM_CONTACT_MARGIN))
     decomposed = stability([bowl], ball, "paper", obj_pose=pose)  # no bone ids: CoACD pieces
     assert decomposed.stable and decomposed.displacement < 1e-3
     hull = physics.build_model([bowl.vertices], ball, convex_decomposition(ball), pose)
@@ -61,7 +62,8 @@ def test_box_pinched_between_two_plates_is_held_by_friction(protocol):
 
 def test_plates_that_do_not_touch_let_it_fall():
     plate = trimesh.creation.box([0.01, 0.08, 0.08])
-    plates = [at(plate, [-0.0255, 0, 0]), at(plate, [0.0255, 0, 0])]
+    off = 0.025 + C.SIM_CONTACT_MARGIN + 0.0005  # 0.5 mm beyond the contact margin on each side
+    plates = [at(plate, [-off, 0, 0]), at(plate, [off, 0, 0])]
     res = stability(plates, BOX, "hold")
     assert res.displacement == pytest.approx(free_fall(round(C.SIM_HOLD_SECONDS / C.SIM_DT)), rel=1e-6)
 
@@ -70,7 +72,8 @@ def test_plates_that_do_not_touch_let_it_fall():
 def test_interpenetrated_start_is_pushed_out_without_exploding(depth):
     floor = at(trimesh.creation.box([0.3, 0.3, 0.3]), -UP * (0.15 + 0.02 - depth))
     res = stability([floor], BOX, "hold")
-    assert not res.diverged and res.displacement < depth + 1e-3  # back to the surface, no further
+    # back to the surface (plus the contact margin), no further
+    assert not res.diverged and res.displacement < depth + C.SIM_CONTACT_MARGIN + 1e-3
 
 
 def test_divergence_is_reported_not_raised(monkeypatch):
@@ -79,14 +82,20 @@ def test_divergence_is_reported_not_raised(monkeypatch):
     assert res.diverged and not res.stable and np.isnan(res.displacement)
 
 
-def test_hand_pieces_follow_bone_ids_and_overlap():
+def test_hand_pieces_follow_bone_ids_and_split_large_bones():
     # a two-bone "finger": a 2 x 1 x 1 cm box split at x = 0, each half one bone
     finger = trimesh.creation.box([0.02, 0.01, 0.01]).subdivide().subdivide()
     finger.metadata["bone_ids"] = (finger.vertices[:, 0] > 1e-9).astype(int)
     pieces = hand_convex_pieces(finger)
-    assert len(pieces) == 2
-    # one-ring overlap: each piece takes in the neighbouring bone's vertices at the joint
-    assert pieces[0][:, 0].max() > 0 and pieces[1][:, 0].min() <= 0
+    assert len(pieces) == 2  # small bones: one piece each, from that bone's vertices only
+    assert pieces[0][:, 0].max() <= 1e-9 and pieces[1][:, 0].min() > 0
+    # a large bone is split into compact clusters so that its hull cannot bulge much
+    big = trimesh.creation.icosphere(4, radius=0.03)
+    big.metadata["bone_ids"] = np.zeros(len(big.vertices), int)
+    parts = hand_convex_pieces(big)
+    assert len(parts) >= len(big.vertices) // C.SIM_HAND_PIECE_POINTS
+    assert sum(len(p) for p in parts) == len(big.vertices)
+    assert hand_convex_pieces(big)[0].tobytes() == parts[0].tobytes()  # deterministic
 
 
 def test_convex_mesh_is_one_piece_and_decomposition_is_cached():
