@@ -19,7 +19,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from grip_bench import constants as C
-from grip_bench.checkpoint import save_checkpoint
+from grip_bench.checkpoint import load_checkpoint, save_checkpoint
 from grip_bench.errors import InputError
 
 SIDES = ("right", "left")
@@ -65,6 +65,14 @@ def save_models(out: Path, models: dict, meta: dict) -> Path:
         configs={k: m.cfg for k, m in models.items()},
         meta=meta,
     )
+
+
+def load_own(checkpoint: Path, expected: dict, name: str):
+    """``load_checkpoint`` that also refuses a checkpoint written by another method."""
+    ck = load_checkpoint(checkpoint, expected)
+    if ck.meta.get("method") != name:
+        raise InputError(f"checkpoint of {ck.meta.get('method')!r}, not {name!r}", checkpoint)
+    return ck
 
 
 def log(progress: bool, name: str, msg: str) -> None:

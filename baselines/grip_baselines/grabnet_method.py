@@ -35,7 +35,6 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.checkpoint import load_checkpoint
 from grip_bench.constants import GRABNET_NOISE_VAR, GRABNET_SMPLX_BPS_CENTRE, PROXIMITY_N_VERTS
 from grip_bench.geometry.rotations import (
     axis_angle_to_rotation_6d,
@@ -367,13 +366,7 @@ class GrabNetMethod:
         return U.save_models(Path(out), {"coarse": coarse, "refine": ref}, meta)
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        ck = load_checkpoint(checkpoint, {"coarse": CoarseNetConfig, "refine": RefineNetConfig})
-        if ck.meta.get("method") != self.name:
-            from grip_bench.errors import InputError
-
-            raise InputError(
-                f"checkpoint of {ck.meta.get('method')!r}, not {self.name!r}", checkpoint
-            )
+        ck = U.load_own(checkpoint, {"coarse": CoarseNetConfig, "refine": RefineNetConfig}, self.name)
         nets = ck.models()
         self.coarse, self.refine_net = nets["coarse"], nets["refine"]
 

@@ -21,7 +21,6 @@ import numpy as np
 import torch
 
 from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.checkpoint import load_checkpoint
 from grip_bench.constants import MANIPNET_FUTURE, MANIPNET_PAST, MANIPNET_VOXEL_RES
 from grip_bench.errors import InputError
 from grip_bench.geometry.rotations import axis_angle_to_rotation_6d, rotation_6d_to_axis_angle
@@ -224,11 +223,7 @@ class ManipNetMethod:
         return U.save_models(Path(out), {"manipnet": net}, meta)
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        ck = load_checkpoint(checkpoint, {"manipnet": ManipNetConfig})
-        if ck.meta.get("method") != self.name:
-            raise InputError(
-                f"checkpoint of {ck.meta.get('method')!r}, not {self.name!r}", checkpoint
-            )
+        ck = U.load_own(checkpoint, {"manipnet": ManipNetConfig}, self.name)
         self.net = ck.models()["manipnet"]
 
     def predict(self, seq, ctx: PredictContext):

@@ -24,7 +24,6 @@ from scipy.spatial import cKDTree
 from torch import nn
 
 from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.checkpoint import load_checkpoint
 from grip_bench.errors import InputError
 
 from . import common as U
@@ -143,11 +142,7 @@ class NearestMethod:
         return U.save_models(Path(out), {"index": index}, meta)
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        ck = load_checkpoint(checkpoint, {"index": NearestIndexConfig})
-        if ck.meta.get("method") != self.name:
-            raise InputError(
-                f"checkpoint of {ck.meta.get('method')!r}, not {self.name!r}", checkpoint
-            )
+        ck = U.load_own(checkpoint, {"index": NearestIndexConfig}, self.name)
         self.index = ck.models()["index"]
         self.tree = cKDTree(self.index.keys.numpy())
 

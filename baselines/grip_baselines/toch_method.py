@@ -29,7 +29,6 @@ import torch
 import trimesh
 
 from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.checkpoint import load_checkpoint
 from grip_bench.constants import (
     TOCH_HIT_THRESHOLD,
     TOCH_INTERACTION_DISTANCE,
@@ -208,11 +207,7 @@ class TochMethod:
         return U.save_models(Path(out), {"toch": net}, meta)
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        ck = load_checkpoint(checkpoint, {"toch": TemporalAEConfig})
-        if ck.meta.get("method") != self.name:
-            raise InputError(
-                f"checkpoint of {ck.meta.get('method')!r}, not {self.name!r}", checkpoint
-            )
+        ck = U.load_own(checkpoint, {"toch": TemporalAEConfig}, self.name)
         self.net = ck.models()["toch"]
         self.cfg = TochTrainConfig(**ck.meta["train_config"])
 
