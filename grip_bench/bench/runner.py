@@ -23,7 +23,7 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
         perturbed    data/ (the test split with GRAB-T / GRAB-R noise)
         checkpoint   model.ckpt (trainable methods only)
         prediction   grab/... + tools/... + splits.json (a GRAB-layout folder)
-        metrics      results.csv [frames.csv] evaluation.json
+        metrics      results.csv [frames.csv] evaluation.json contact_stats.npz
         runtime      runtime.json (timed predictions, rows of runtime.csv)
     OUT/results.csv                tidy results of every metric unit (DESIGN 4.3)
     OUT/frames.csv                 per-frame values (when [run] per_frame = true)
@@ -31,6 +31,9 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
     OUT/leaderboard.{csv,md,html}  every method on the clean test split, figures embedded
     OUT/tables/<table>.{md,csv,tex,html}
     OUT/figures/*.png              contact heatmaps, penetration CDF, per-object bars (+ data)
+        heatmap_data.npz           per-vertex contact frequency, gt + [run] figure_methods
+        penetration_depths.npz     per-frame penetration depths (mm), the same methods
+        contact_heatmaps.png  penetration_cdf.png  per_object_<metric>.png (mpvpe, iv)
     OUT/manifest.json              versions, git revision, profile, config, seeds, data hash,
                                    wall time per stage (DESIGN 4.3)
     OUT/run.log                    what each run did (appended)
@@ -58,7 +61,6 @@ bytes.
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
 import os
 import re
@@ -70,6 +72,7 @@ from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from .. import constants as C
@@ -712,7 +715,7 @@ def evaluate_set(st: RunState, unit: Unit, tmp: Path) -> dict:
                          method=p["labels"]["method"], metrics=list(s["metrics"]) or None,
                          per_frame=s["per_frame"], workers=st.cfg.workers or default_workers(),
                          progress=st.cfg.progress, split=MAIN_SPLIT,
-                         options=eval_options(st.cfg))
+                         options=eval_options(st.cfg), contact_stats=True)
     for name in ("results.csv", "frames.csv"):
         _relabel(tmp / name, p["labels"])
     return {"sequences": info.get("n_sequences"), "failures": info.get("failures")}
@@ -797,15 +800,112 @@ def _runtime_columns() -> tuple[str, ...]:
     return RUNTIME_COLUMNS
 
 
+# figure data (written by ``run`` from the metric units, read by ``write_figures``)
+HEATMAP_DATA = "heatmap_data.npz"
+DEPTH_DATA = "penetration_depths.npz"
+DEPTH_FORMAT = 1
+HEATMAP_PNG = "contact_heatmaps.png"
+CDF_PNG = "penetration_cdf.png"
+BAR_METRICS = ("mpvpe", "iv")  # per_object_<metric>.png
+DEFAULT_FIGURE_METHODS = ("grip", "grip-no-rnet")  # when [run] figure_methods is empty
+
+
+def figure_methods(settings: dict) -> list[str]:
+    """Methods of the heatmaps and the CDF: gt first, then ``[run] figure_methods`` (empty:
+    :data:`DEFAULT_FIGURE_METHODS`); those without figure data are left out later."""
+    chosen = list(settings.get("figure_methods") or DEFAULT_FIGURE_METHODS)
+    return ["gt", *dict.fromkeys(m for m in chosen if m != "gt")]
+
+
+def assemble_figure_data(st: RunState) -> None:
+    """``OUT/figures/{heatmap_data,penetration_depths}.npz`` from the clean-split metric units'
+    ``contact_stats.npz`` (stale files are removed when there is nothing to write)."""
+    from ..metrics.aggregate import CONTACT_STATS_FILE, read_npz, write_npz
+    from ..report.figures import SIDES, write_heatmap_data
+
+    figs = st.cfg.out / "figures"
+    stats: dict[str, dict] = {}
+    for u in st.plan.of("metrics"):
+        labels = u.params["labels"]
+        path = st.unit_dir(u.key) / CONTACT_STATS_FILE
+        if labels["perturbation"] == CLEAN and labels["split"] == MAIN_SPLIT and path.is_file():
+            stats.setdefault(labels["method"], read_npz(path))
+    methods = [m for m in figure_methods(st.cfg.settings) if m in stats]
+    freqs: dict[str, dict] = {}
+    for m in methods:
+        freqs[m] = {}
+        for side in SIDES:
+            if f"{side}_counts" not in stats[m]:
+                continue
+            counts, n = stats[m][f"{side}_counts"], int(stats[m][f"{side}_frames"][0])
+            freqs[m][side] = counts / n if n else np.full(counts.shape, np.nan)
+    freqs = {m: f for m, f in freqs.items() if f}
+    if freqs:
+        write_heatmap_data(figs / HEATMAP_DATA, freqs)
+    elif (figs / HEATMAP_DATA).exists():
+        (figs / HEATMAP_DATA).unlink()
+    if methods:
+        depths = [np.concatenate([stats[m].get(f"{side}_depths", np.zeros(0)) for side in SIDES])
+                  for m in methods]
+        write_npz(figs / DEPTH_DATA, {
+            "format": np.array([DEPTH_FORMAT], np.int64), "methods": np.array(methods, dtype=str),
+            "depths": np.concatenate(depths).astype(np.float64),
+            "offsets": np.cumsum([0, *(len(d) for d in depths)]).astype(np.int64)})
+    elif (figs / DEPTH_DATA).exists():
+        (figs / DEPTH_DATA).unlink()
+
+
+def read_depth_data(path: Path) -> dict[str, np.ndarray]:
+    """``{method: (N,) mm}`` of ``penetration_depths.npz``."""
+    from ..metrics.aggregate import read_npz
+
+    d = read_npz(path)
+    if int(d["format"][0]) != DEPTH_FORMAT:
+        raise InputError(f"penetration depth format {int(d['format'][0])}, expected {DEPTH_FORMAT}",
+                         path)
+    off = d["offsets"]
+    return {m: d["depths"][off[i]:off[i + 1]] for i, m in enumerate(d["methods"].tolist())}
+
+
 def write_figures(out: Path, results: pd.DataFrame, options: dict) -> list[Path]:
     """Figures under ``OUT/figures/`` from saved results and figure data (report.figures).
 
-    Returns the PNG paths (embedded in leaderboard.html). Until ``report.figures`` exists
-    no figure is drawn and the run log says so.
+    Contact heatmaps (``heatmap_data.npz``), penetration CDF (``penetration_depths.npz``)
+    and per-object bars of :data:`BAR_METRICS` on the clean main split (``results``). A
+    figure without data (or whose data does not fit, e.g. a hand template of another vertex
+    count) is skipped and an older PNG of it removed. Returns the PNG paths (embedded in
+    leaderboard.html).
     """
-    if importlib.util.find_spec("grip_bench.report.figures") is None:
-        return []
-    return []  # wired up when report.figures lands (contact heatmaps, CDF, per-object bars)
+    from ..report import figures as F
+
+    figs = out / "figures"
+    drawn: list[Path] = []
+    jobs = []
+    if (figs / HEATMAP_DATA).is_file():
+        jobs.append((HEATMAP_PNG, lambda p: F.contact_heatmap(
+            F.read_heatmap_data(figs / HEATMAP_DATA), p,
+            title="Contact frequency over grasp frames (clean test split)")))
+    if (figs / DEPTH_DATA).is_file():
+        jobs.append((CDF_PNG, lambda p: F.penetration_cdf(
+            read_depth_data(figs / DEPTH_DATA), p,
+            title="Penetration depth per grasp frame (clean test split)")))
+    main = results[(results["split"] == options.get("split", MAIN_SPLIT))
+                   & (results["perturbation"] == CLEAN)]
+    for metric in BAR_METRICS:
+        if (main["metric"] == metric).any():
+            jobs.append((f"per_object_{metric}.png", lambda p, metric=metric: F.per_object_bars(
+                main, metric, p, n_boot=options["bootstrap_n"], seed=options["bootstrap_seed"])))
+    names = {HEATMAP_PNG, CDF_PNG, *(f"per_object_{m}.png" for m in BAR_METRICS)}
+    for name, draw in jobs:
+        try:
+            drawn.append(draw(figs / name))
+            names.discard(name)
+        except InputError:
+            pass
+    for name in sorted(names):  # stale figures of an earlier run
+        if (figs / name).exists():
+            (figs / name).unlink()
+    return drawn
 
 
 def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
@@ -868,9 +968,10 @@ def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Pa
 def stage_report(st: RunState) -> None:
     t0 = time.perf_counter()
     assemble_results(st)
+    assemble_figure_data(st)
     written = write_report(st.cfg.out, st.cfg.report_options())
-    if not any(p.suffix == ".png" for p in written):
-        st.log("figures: none drawn (grip_bench.report.figures is not available yet)")
+    pngs = [p.name for p in written if p.suffix == ".png"]
+    st.log(f"figures: {', '.join(pngs)}" if pngs else "figures: none drawn (no figure data)")
     st.stage_times["report"] = round(time.perf_counter() - t0, 3)
 
 

@@ -7,7 +7,8 @@ anything is computed or written. Sequences then run over a process pool (spawn-s
 :class:`ObjectLibrary` and one torch thread per worker); rows are sorted canonically, so the
 files are byte-identical for any number of workers.
 
-Writes (atomically) ``results.csv``, ``frames.csv`` with ``per_frame`` and ``evaluation.json``.
+Writes (atomically) ``results.csv``, ``frames.csv`` with ``per_frame`` and ``evaluation.json``;
+with ``contact_stats`` also ``contact_stats.npz`` (figure data, :func:`pool_contact_stats`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import time
 from collections import Counter
 from dataclasses import asdict, dataclass
 from pathlib import Path
+
+import numpy as np
 
 from .. import constants as C
 from ..errors import InputError
@@ -36,6 +39,7 @@ class Task:
     labels: RowLabels
     options: EvalOptions
     per_frame: bool
+    contact_stats: bool = False
 
 
 # ------------------------------------------------------------------ labels
@@ -152,16 +156,21 @@ def _init_worker(gt_dir: str) -> None:
     _LIBRARY = ObjectLibrary(gt_dir)
 
 
-def run_task(task: Task) -> tuple[list, list, dict]:
-    """Evaluate one pair in this process: (rows, frame rows, failure counts by reason)."""
+def run_task(task: Task) -> tuple:
+    """Evaluate one pair in this process: (rows, frame rows, failure counts by reason), plus
+    ``{side: contact_stats}`` as a fourth item when ``task.contact_stats``."""
     from ..data.grab_io import read_grab
     from .evaluate import evaluate_sequence
     from .intersection import FailureCounter
 
     failures = FailureCounter()
     pred, gt = read_grab(task.pred), read_grab(task.gt)
+    stats: dict | None = {} if task.contact_stats else None
     rows, frames = evaluate_sequence(pred, gt, _LIBRARY, per_frame=task.per_frame,
-                                     options=task.options, labels=task.labels, failures=failures)
+                                     options=task.options, labels=task.labels, failures=failures,
+                                     stats=stats)
+    if stats is not None:
+        return rows, frames, dict(failures.reasons), stats
     return rows, frames, dict(failures.reasons)
 
 
@@ -206,12 +215,14 @@ def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool) -> 
 # ------------------------------------------------------------------ entry point
 def evaluate_dirs(pred_dir, gt_dir, out_dir, *, method: str = "method", metrics=None,
                   per_frame: bool = False, workers: int = 1, progress: bool = False,
-                  split: str = "test", options: EvalOptions | None = None) -> dict:
+                  split: str = "test", options: EvalOptions | None = None,
+                  contact_stats: bool = False) -> dict:
     """Evaluate every prediction of ``pred_dir`` against ``gt_dir``; write to ``out_dir``.
 
     metrics: ids (None: all registered); workers: processes; split: GT split ("all" for
-    every sequence). Returns the ``evaluation.json`` content. Nothing is written when the
-    folders do not match (:class:`InputError`).
+    every sequence); contact_stats: also write ``contact_stats.npz`` (figure data of the
+    set, :func:`pool_contact_stats`). Returns the ``evaluation.json`` content. Nothing is
+    written when the folders do not match (:class:`InputError`).
     """
     start = time.perf_counter()
     pred_dir, gt_dir, out_dir = Path(pred_dir), Path(gt_dir), Path(out_dir)
@@ -223,12 +234,19 @@ def evaluate_dirs(pred_dir, gt_dir, out_dir, *, method: str = "method", metrics=
     pred_manifest = _manifest(pred_dir)
     labels = RowLabels(method, dataset_name(gt_dir, _manifest(gt_dir)), split,
                        perturbation_name(pred_manifest))
-    tasks = [Task(str(pred_dir / rel), str(gt_dir / rel), labels, options, per_frame)
-             for rel, _, _ in pairs]
+    tasks = [Task(str(pred_dir / rel), str(gt_dir / rel), labels, options, per_frame,
+                  contact_stats) for rel, _, _ in pairs]
     results = run_tasks(tasks, gt_dir, max(1, int(workers)), progress)
+    stats = [r[3] for r in results if len(r) > 3]
+    results = [tuple(r[:3]) for r in results]
     info = _summary(labels, options, pred_dir, gt_dir, pred_manifest, results, ignored)
     info["wall_time_s"] = round(time.perf_counter() - start, 3)
     _write_outputs(out_dir, results, per_frame, info)
+    if contact_stats:
+        try:
+            write_npz(out_dir / CONTACT_STATS_FILE, pool_contact_stats(stats, options.sides))
+        except ValueError:  # mixed hand models: no figure data, the metrics stand
+            pass
     return info
 
 
@@ -261,6 +279,59 @@ def _write_outputs(out_dir: Path, results, per_frame: bool, info: dict) -> None:
         write_results([r for _, frames, _ in results for r in frames], out_dir / "frames.csv")
     text = json.dumps(info, indent=2, sort_keys=True, default=str) + "\n"
     atomic_write_text(out_dir / "evaluation.json", text)
+
+
+# ------------------------------------------------------------------ figure data
+CONTACT_STATS_FILE = "contact_stats.npz"
+CONTACT_STATS_FORMAT = 1
+
+
+def pool_contact_stats(per_sequence: list[dict], sides=("right", "left")) -> dict[str, np.ndarray]:
+    """Pool ``evaluate.contact_stats`` of sequences (in the given order) into the arrays of
+    ``contact_stats.npz``: per side ``<side>_counts`` (V,) int64 (contact counts summed over
+    grasp frames), ``<side>_frames`` (1,) int64 (grasp frames) and ``<side>_depths`` (K,)
+    float64 (per-frame penetration depths, mm, concatenated). Contact frequency of the set:
+    counts / frames; sets pool exactly by summing counts and frames. Sequences whose vertex
+    count differs from the first one's raise ``ValueError``."""
+    out: dict[str, np.ndarray] = {"format": np.array([CONTACT_STATS_FORMAT], np.int64)}
+    for side in sides:
+        items = [s[side] for s in per_sequence if side in s]
+        shapes = {np.shape(it["counts"]) for it in items}
+        if len(shapes) > 1:
+            raise ValueError(f"{side} hands of different vertex counts: {sorted(shapes)}")
+        n_verts = shapes.pop()[0] if shapes else 0
+        counts = np.zeros(n_verts, np.int64)
+        for it in items:
+            counts += np.asarray(it["counts"], np.int64)
+        out[f"{side}_counts"] = counts
+        out[f"{side}_frames"] = np.array([sum(int(it["frames"]) for it in items)], np.int64)
+        depths = [np.asarray(it["depths"], np.float64).reshape(-1) for it in items]
+        out[f"{side}_depths"] = np.concatenate(depths) if depths else np.zeros(0)
+    return out
+
+
+def write_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> Path:
+    """Atomic ``.npz`` of numeric / fixed-width string arrays (no pickles), in the given key
+    order with a fixed zip date, so equal arrays give equal bytes."""
+    import io
+    import zipfile
+
+    from ..bench.cache import atomic_write_bytes
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for key, a in arrays.items():
+            npy = io.BytesIO()
+            np.lib.format.write_array(npy, np.ascontiguousarray(a), allow_pickle=False)
+            zf.writestr(zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0)),
+                        npy.getvalue(), compress_type=zipfile.ZIP_DEFLATED)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def read_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` written by :func:`write_npz` (no pickles)."""
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
 
 
 def default_workers() -> int:

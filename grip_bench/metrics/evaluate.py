@@ -378,7 +378,7 @@ def _rows(labels: RowLabels, gt, side: str, metric: str, m: Measured, per_frame:
 
 def evaluate_sequence(pred, gt, library, *, metrics=None, per_frame: bool = False,
                       options: EvalOptions = EvalOptions(), labels: RowLabels = RowLabels(),
-                      failures: FailureCounter | None = None
+                      failures: FailureCounter | None = None, stats: dict | None = None
                       ) -> tuple[list[ResultRow], list[ResultRow]]:
     """All requested metrics of both hands of one predicted sequence against its ground truth.
 
@@ -386,7 +386,8 @@ def evaluate_sequence(pred, gt, library, *, metrics=None, per_frame: bool = Fals
     library: :class:`~grip_bench.data.library.ObjectLibrary` of the GT data; metrics: ids
     (None: ``options.metrics``, else all); failures: counter the IV and physics failures are
     added to. Returns (result rows, per-frame rows; empty unless ``per_frame``), values in
-    report units, rows in (hand, registry metric) order.
+    report units, rows in (hand, registry metric) order. ``stats``: optional dict, filled with
+    :func:`contact_stats` of every hand (figure data; the rows do not change).
     """
     check_pair(pred, gt)
     ids = options.metric_ids(metrics)
@@ -397,4 +398,19 @@ def evaluate_sequence(pred, gt, library, *, metrics=None, per_frame: bool = Fals
             row, frames = _rows(labels, gt, side, metric, METRIC_FUNCS[metric](pair, side), per_frame)
             rows.append(row)
             frame_rows.extend(frames)
+        if stats is not None:
+            stats[side] = contact_stats(pair, side)
     return rows, frame_rows
+
+
+def contact_stats(pair: SequencePair, side: str) -> dict[str, np.ndarray]:
+    """Figure data of one hand on its (GT) grasp frames, poolable over sequences by summing:
+    ``counts`` (V,) int64 grasp frames with each predicted vertex in contact (4.5 mm, as
+    :func:`~grip_bench.metrics.contact.contact_frequency`), ``frames`` () int64 grasp frames,
+    ``depths`` (K,) float64 per-frame penetration depth of the prediction in mm."""
+    sd = pair.track("pred", side).sd
+    mask = pair.grasp(side)
+    counts = in_contact(sd[mask], C.CONTACT_THRESHOLD).sum(axis=0, dtype=np.int64)
+    depths = METRICS.get("pen_depth").to_report(penetration_depth_from_sdf(sd[mask]))
+    return {"counts": np.asarray(counts, np.int64).reshape(sd.shape[-1]),
+            "frames": np.int64(mask.sum()), "depths": np.asarray(depths, np.float64).reshape(-1)}

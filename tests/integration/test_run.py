@@ -28,6 +28,8 @@ PERTURBATIONS = ["T0.01", "R0.3"]
 METRICS = ["mpjpe", "mpvpe", "cc", "contact_ratio"]
 FORMATS = ("md", "csv", "tex", "html")
 KINDS = ("dataset", "perturbed", "prediction", "metrics", "runtime")
+FIGURES = ("heatmap_data.npz", "penetration_depths.npz", "contact_heatmaps.png",
+           "penetration_cdf.png", "per_object_mpvpe.png")
 # units of the tiny run: 1 dataset, 2 perturbed sets, 4 clean + 2 perturbed predictions
 # (perturbed-input is Table 3's "before" row), as many metric sets, 4 runtime units
 N_UNITS = 1 + 2 + 6 + 6 + 4
@@ -178,11 +180,38 @@ def test_report_rerenders_the_same_bytes(finished, tmp_path, capsys):
     copy = tmp_path / "copy"
     shutil.copytree(finished, copy, ignore=shutil.ignore_patterns("cache"))
     expected = _report_files(finished)
+    assert {f"figures/{name}" for name in FIGURES} <= set(expected)
     shutil.rmtree(copy / "tables")
-    for p in copy.glob("leaderboard.*"):
+    for p in [*copy.glob("leaderboard.*"), *(copy / "figures").glob("*.png")]:
         p.unlink()
     assert main(["report", str(copy)]) == 0  # without the cache: nothing is recomputed
     assert _report_files(copy) == expected
+
+
+def test_figures_are_drawn_from_saved_figure_data(finished):
+    import numpy as np
+
+    from grip_bench.bench.runner import read_depth_data
+    from grip_bench.report.figures import read_heatmap_data
+
+    figs = finished / "figures"
+    assert sorted(p.name for p in figs.iterdir()) == sorted(FIGURES)  # no iv: not computed
+    for name in FIGURES:
+        assert (figs / name).stat().st_size > 0, name
+    stats = sorted((finished / "cache" / "metrics").glob("*/*/contact_stats.npz"))
+    assert len(stats) == 6  # every metric unit saves its figure data
+    heat = read_heatmap_data(figs / "heatmap_data.npz")
+    assert list(heat) == ["gt", "mean-pose"]  # gt + [run] figure_methods
+    for per_side in heat.values():
+        assert set(per_side) == {"right", "left"}
+        for freq in per_side.values():
+            fin = freq[np.isfinite(freq)]  # all NaN for a hand that never grasps
+            assert ((fin >= 0) & (fin <= 1)).all()
+    assert np.nanmax(np.concatenate(list(heat["gt"].values()))) > 0  # GT hands touch objects
+    depths = read_depth_data(figs / "penetration_depths.npz")
+    assert list(depths) == ["gt", "mean-pose"] and all(d.size for d in depths.values())
+    html = (finished / "leaderboard.html").read_text(encoding="utf-8")
+    assert html.count("data:image/png;base64,") == sum(n.endswith(".png") for n in FIGURES)
 
 
 def test_report_needs_results(tmp_path, capsys):

@@ -169,3 +169,43 @@ def test_labels_from_manifests(tmp_path):
     assert perturbation_name({"perturbation": "T0.01"}) == "T0.01"
     assert perturbation_name({"generator": "grip_bench.data.perturb", "kind": "R", "sigma": 0.3}) == "R0.3"
     assert perturbation_name({}) == "none"
+
+
+def test_contact_stats_pool_to_the_contact_frequency_of_all_grasp_frames(data, tmp_path):
+    from grip_bench.metrics.aggregate import pool_contact_stats, read_npz, write_npz
+    from grip_bench.metrics.contact import contact_frequency
+
+    lib, seqs = data
+    pred = seqs["mug"].copy()
+    pred.rhand["transl"] = pred.rhand["transl"] + np.array([0.0, -0.004, 0.0])  # push it in
+    pairs = [(pred, seqs["mug"]), *((gt, gt) for gt in seqs.values())]
+    stats, sds, masks = [], {"right": [], "left": []}, {"right": [], "left": []}
+    for p, gt in pairs:
+        plain, plain_frames = E.evaluate_sequence(p, gt, lib, options=FAST, per_frame=True)
+        got: dict = {}
+        rows, frames = E.evaluate_sequence(p, gt, lib, options=FAST, per_frame=True, stats=got)
+        assert repr((rows, frames)) == repr((plain, plain_frames))  # the rows do not change (NaN-safe)
+        stats.append(got)
+        pair = E.SequencePair(p, gt, lib, FAST, I.FailureCounter())
+        for side in ("right", "left"):
+            sds[side].append(pair.track("pred", side).sd)
+            masks[side].append(pair.grasp(side))
+            pen = [r.value for r in frames if r.hand == side and r.metric == "pen_depth"]
+            np.testing.assert_allclose(got[side]["depths"], pen, rtol=1e-12, atol=1e-12)  # mm
+            assert int(got[side]["frames"]) == int(pair.grasp(side).sum())
+    pooled = pool_contact_stats(stats)
+    for side in ("right", "left"):
+        freq = contact_frequency(np.concatenate(sds[side]), np.concatenate(masks[side]))
+        n = int(pooled[f"{side}_frames"][0])
+        assert n == sum(int(m.sum()) for m in masks[side]) > 0
+        assert pooled[f"{side}_counts"].dtype == np.int64
+        np.testing.assert_allclose(pooled[f"{side}_counts"] / n, freq, rtol=0, atol=1e-12)
+        assert len(pooled[f"{side}_depths"]) == n
+    assert pooled["right_depths"].max() > 0  # the pushed-in hand penetrates
+    assert int(stats[0]["left"]["frames"]) == 0 and not stats[0]["left"]["counts"].any()
+    a, b = write_npz(tmp_path / "a.npz", pooled), write_npz(tmp_path / "b.npz", pooled)
+    assert a.read_bytes() == b.read_bytes()  # deterministic bytes
+    back = read_npz(a)
+    assert list(back) == list(pooled)
+    for k, v in pooled.items():
+        np.testing.assert_array_equal(back[k], v)
