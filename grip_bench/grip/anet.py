@@ -23,8 +23,14 @@ from grip_bench.constants import (
     ROT6D_DIM,
 )
 from grip_bench.errors import InputError
-from grip_bench.grip.blocks import ResMLP, check_config, check_shape
-from grip_bench.grip.ltc import check_mode, decode_frames, n_frames_out, split_codes
+from grip_bench.grip.blocks import check_config, check_shape
+from grip_bench.grip.ltc import (
+    check_mode,
+    decode_frames,
+    encoder_decoder,
+    n_frames_out,
+    split_codes,
+)
 
 
 @dataclass
@@ -88,13 +94,7 @@ class ANet(nn.Module):
     def __init__(self, cfg: ANetConfig):
         super().__init__()
         self.cfg = cfg
-        block = dict(width=cfg.width, hidden=cfg.hidden, dropout=cfg.dropout)
-        self.encoder = ResMLP(
-            cfg.in_dim, cfg.n_frames * cfg.latent, n_blocks=cfg.n_enc_blocks, **block
-        )
-        self.decoder = ResMLP(
-            cfg.latent, cfg.pose_dim, n_blocks=cfg.n_dec_blocks, input_norm=False, **block
-        )
+        self.encoder, self.decoder = encoder_decoder(cfg, cfg.pose_dim)
 
     def pack_inputs(self, current, noisy_future, context) -> torch.Tensor:
         """Check shapes and concatenate the encoder input ``(B, in_dim)``."""

@@ -26,8 +26,14 @@ from grip_bench.constants import (
     ROT6D_DIM,
 )
 from grip_bench.errors import InputError
-from grip_bench.grip.blocks import ResMLP, check_config, check_shape
-from grip_bench.grip.ltc import check_mode, decode_frames, n_frames_out, split_codes
+from grip_bench.grip.blocks import check_config, check_shape
+from grip_bench.grip.ltc import (
+    check_mode,
+    decode_frames,
+    encoder_decoder,
+    n_frames_out,
+    split_codes,
+)
 
 N_HANDS = 2  # left, right (index 0 = left, 1 = right throughout GRIP's networks)
 
@@ -98,14 +104,7 @@ class CNet(nn.Module):
     def __init__(self, cfg: CNetConfig):
         super().__init__()
         self.cfg = cfg
-        block = dict(width=cfg.width, hidden=cfg.hidden, dropout=cfg.dropout)
-        self.encoder = ResMLP(
-            cfg.in_dim, cfg.n_frames * cfg.latent, n_blocks=cfg.n_enc_blocks, **block
-        )
-        # The latent is the encoder head's output, already on a learned scale: no input BN.
-        self.decoder = ResMLP(
-            cfg.latent, cfg.out_dim, n_blocks=cfg.n_dec_blocks, input_norm=False, **block
-        )
+        self.encoder, self.decoder = encoder_decoder(cfg, cfg.out_dim)
 
     def pack_inputs(self, body, ambient, proximity, future) -> torch.Tensor:
         """Check shapes and concatenate the encoder input ``(B, in_dim)``."""

@@ -57,3 +57,18 @@ def decode_frames(decoder: torch.nn.Module, z: torch.Tensor) -> torch.Tensor:
     (the "shared decoder" of LTC) and costs one matmul per layer instead of F.
     """
     return decoder(z)
+
+
+def encoder_decoder(cfg, out_dim: int):
+    """The LTC pair: an encoder to ``cfg.n_frames`` latents and ONE decoder shared by all frames.
+
+    ``cfg`` provides in_dim, latent, n_frames, width, hidden, dropout, n_enc_blocks and
+    n_dec_blocks (CNetConfig and ANetConfig do). Returns ``(encoder, decoder)``.
+    """
+    from .blocks import ResMLP
+
+    block = dict(width=cfg.width, hidden=cfg.hidden, dropout=cfg.dropout)
+    encoder = ResMLP(cfg.in_dim, cfg.n_frames * cfg.latent, n_blocks=cfg.n_enc_blocks, **block)
+    # The latent is the encoder head's output, already on a learned scale: no input BN.
+    decoder = ResMLP(cfg.latent, out_dim, n_blocks=cfg.n_dec_blocks, input_norm=False, **block)
+    return encoder, decoder
