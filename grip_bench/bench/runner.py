@@ -25,6 +25,7 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
         prediction   grab/... + tools/... + splits.json (a GRAB-layout folder)
         metrics      results.csv [frames.csv] evaluation.json contact_stats.npz
         runtime      runtime.json (timed predictions, rows of runtime.csv)
+    OUT/cache/features/            GRIP's sensor features per data hash, shared by its variants
     OUT/results.csv                tidy results of every metric unit (DESIGN 4.3)
     OUT/frames.csv                 per-frame values (when [run] per_frame = true)
     OUT/runtime.csv                prediction time per frame per method and mode
@@ -60,6 +61,7 @@ bytes.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -401,19 +403,43 @@ def world_up(cfg: RunConfig) -> tuple[float, float, float]:
     return tuple(float(x) for x in C.UP) if procedural else (0.0, 0.0, 1.0)
 
 
-def _metric_inputs(cfg: RunConfig) -> dict:
+def set_metrics(cfg: RunConfig, label: str) -> list[str]:
+    """Metric ids evaluated on test set ``label``, sorted.
+
+    The clean set gets every chosen metric (the leaderboard shows them all); a perturbed
+    set only those a chosen table reads on it (Table 3: MPVPE, MPJPE), which spares the
+    costly physics and intersection metrics on sets no table shows them for.
+    """
+    from ..metrics.registry import METRICS
+    from .tables import TABLES
+
+    chosen = list(cfg.settings["metrics"] or METRICS.names())
+    if label == CLEAN:
+        return sorted(chosen)
+    read = set()
+    for tid in cfg.tables:
+        spec = TABLES.get(tid)
+        for row in spec.rows:
+            for col in spec.columns:
+                flt = spec.cell_filters(row, col)
+                if flt.get("perturbation", CLEAN) == label and flt.get("metric"):
+                    read.add(flt["metric"])
+    return sorted(m for m in chosen if m in read)
+
+
+def _metric_inputs(cfg: RunConfig, label: str = CLEAN) -> dict:
     from ..metrics.registry import METRICS
 
-    chosen = cfg.settings["metrics"] or METRICS.names()
+    chosen = set_metrics(cfg, label)
     versions = {m: METRICS.get(m).version for m in chosen}
-    return {"metrics": sorted(chosen), "versions": versions, "per_frame": cfg.settings["per_frame"],
+    return {"metrics": chosen, "versions": versions, "per_frame": cfg.settings["per_frame"],
             "options": asdict(eval_options(cfg)), "code": _package_digest("grip_bench.metrics")}
 
 
 def _predict_eval_units(cfg, plan_units, data, sets, ckpts, dataset) -> None:
     from .methods import METHODS
 
-    metric_inputs = _metric_inputs(cfg)
+    metric_inputs = {label: _metric_inputs(cfg, label) for label in (CLEAN, *cfg.perturbations)}
     for name, labels in method_needs(cfg).items():
         spec = METHODS.get(name)
         ckpt = ckpts[name]
@@ -429,7 +455,7 @@ def _predict_eval_units(cfg, plan_units, data, sets, ckpts, dataset) -> None:
             labels_ = {"method": name, "dataset": dataset, "split": MAIN_SPLIT,
                        "perturbation": label}
             _add(plan_units, "metrics", f"evaluate {name} @ {label}",
-                 {**metric_inputs, "prediction": pred.key, "gt": data.key, "labels": labels_},
+                 {**metric_inputs[label], "prediction": pred.key, "gt": data.key, "labels": labels_},
                  [pred.key, data.key], prediction=pred.key, gt=data.key, labels=labels_)
 
 
@@ -625,15 +651,36 @@ def train_method(st: RunState, unit: Unit, tmp: Path) -> dict:
     """
     from .methods import METHODS
 
+    from ..grip.train import FEATURE_CACHE_ENV
+
     work = st.cache.root / "work" / unit.key
     work.mkdir(parents=True, exist_ok=True)
     method = METHODS.get(unit.params["method"]).build()
-    path = Path(method.train(st.data_dir(unit.deps[0]), work / "model.ckpt",
-                             profile=st.cfg.profile, seed=st.cfg.seed, device=st.cfg.device,
-                             progress=st.cfg.progress))
+    # one feature cache per run and code version: GRIP's variants share the sensor features
+    # of the data (keyed by its hash) instead of rebuilding them in each work folder
+    code = _package_digest("grip_bench.grip") + _package_digest("grip_bench")  # + sensors.py
+    features = st.cache.root / "features" / hashlib.sha256(code.encode()).hexdigest()[:16]
+    with _env(FEATURE_CACHE_ENV, os.environ.get(FEATURE_CACHE_ENV) or str(features)):
+        path = Path(method.train(st.data_dir(unit.deps[0]), work / "model.ckpt",
+                                 profile=st.cfg.profile, seed=st.cfg.seed, device=st.cfg.device,
+                                 progress=st.cfg.progress))
     shutil.move(path, tmp / path.name)
     shutil.rmtree(work, ignore_errors=True)
     return {"file": path.name}
+
+
+@contextlib.contextmanager
+def _env(name: str, value: str):
+    """Set the environment variable ``name`` inside the block, restoring it afterwards."""
+    before = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = before
 
 
 def loaded_method(st: RunState, name: str, ckpt_key: str | None):
@@ -712,7 +759,7 @@ def evaluate_set(st: RunState, unit: Unit, tmp: Path) -> dict:
 
     p, s = unit.params, st.cfg.settings
     info = evaluate_dirs(st.unit_dir(p["prediction"]), st.data_dir(p["gt"]), tmp,
-                         method=p["labels"]["method"], metrics=list(s["metrics"]) or None,
+                         method=p["labels"]["method"], metrics=p["inputs"]["metrics"],
                          per_frame=s["per_frame"], workers=st.cfg.workers or default_workers(),
                          progress=st.cfg.progress, split=MAIN_SPLIT,
                          options=eval_options(st.cfg), contact_stats=True)

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import hashlib
+import json
 import os
 import time
 from dataclasses import asdict, dataclass
@@ -388,11 +390,15 @@ def train_grip(data_dir, out, *, profile: dict, variant: Variant = Variant(), se
     configs = build_configs(hp, variant)
     partial = out.with_name(out.name + ".partial")
     models_done, states = _load_partial(partial, fp)
+    shared = _shared_anet_path(cache, fp, configs["anet"])
     with deterministic():
         nets = _build_nets(configs, seed, models_done)
         for name in STAGES:
             st = states.get(name, StageState())
+            if name == "anet" and not st.done:
+                st = _load_shared_anet(shared, nets["anet"]) or st
             if st.done:
+                states[name] = st
                 continue
             stage = _make_stage(name, nets, data, hp, variant, ObjectLibrary(data_dir))
             epochs = hp[f"epochs_{name}"]
@@ -402,6 +408,8 @@ def train_grip(data_dir, out, *, profile: dict, variant: Variant = Variant(), se
                 _save_partial(partial, nets, configs, states, fp)
 
             states[name] = fit(stage, hp, st, seed, epochs, save, progress)
+            if name == "anet":
+                _save_shared_anet(shared, nets["anet"], states[name])
     meta = {**fp, "curves": {k: {"train": s.train_curve, "val": s.val_curve, "epochs": s.epoch}
                              for k, s in states.items()},
             "variant": asdict(variant), "profile": profile.get("name", "?"),
@@ -410,6 +418,38 @@ def train_grip(data_dir, out, *, profile: dict, variant: Variant = Variant(), se
     save_checkpoint(out, model_state={k: m.state_dict() for k, m in nets.items()}, configs=configs, meta=meta)
     partial.unlink(missing_ok=True)
     return out
+
+
+# --- ANet shared by the variants ------------------------------------------------------------
+# ANet sees only the arms: its config, data, seeds and batches do not depend on the variant,
+# so every variant trained on the same data with the same profile gets the same weights.
+# The first one to train it leaves them in the feature cache; the others load them.
+def _shared_anet_path(cache: Path, fp: dict, cfg) -> Path:
+    ident = {k: v for k, v in fp.items() if k != "train_key"}
+    ident["anet"] = asdict(cfg)
+    key = hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    return Path(cache) / f"anet-{key}.pt"
+
+
+def _save_shared_anet(path: Path, anet, st: StageState) -> None:
+    curves = {"epoch": st.epoch, "best_loss": float(st.best_loss),
+              "train_curve": st.train_curve, "val_curve": st.val_curve}
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({"state": anet.state_dict(), "curves": curves}, tmp)
+    os.replace(tmp, path)
+
+
+def _load_shared_anet(path: Path, anet) -> StageState | None:
+    """The finished ANet stage from ``path`` loaded into ``anet``, or None (absent, unreadable)."""
+    if not path.is_file():
+        return None
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True)
+        anet.load_state_dict(saved["state"])
+    except (OSError, RuntimeError, KeyError, ValueError, EOFError):
+        return None  # a broken cache file is retrained over, never trusted
+    return StageState(**saved["curves"], best_state=saved["state"], done=True)
 
 
 def _already_trained(out: Path, fp: dict) -> bool:

@@ -60,6 +60,26 @@ def test_training_reduces_loss_and_is_deterministic(root, trained, tmp_path):
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
 
 
+def test_variants_share_anet_through_the_feature_cache(root, tmp_path, monkeypatch):
+    """A variant's ANet, loaded from the first training's cache, equals one trained afresh."""
+    monkeypatch.setenv(TR.FEATURE_CACHE_ENV, str(tmp_path / "shared"))
+    first = GripMethod().train(root, tmp_path / "grip.pt", profile=tiny_profile(), progress=False)
+    assert len(list((tmp_path / "shared").glob("anet-*.pt"))) == 1
+    calls = []
+    real_fit = TR.fit
+    monkeypatch.setattr(TR, "fit", lambda stage, *a: calls.append(stage.name) or real_fit(stage, *a))
+    variant = GripMethod("grip-no-consist", consistency="none")
+    shared = variant.train(root, tmp_path / "nc.pt", profile=tiny_profile(), progress=False)
+    assert calls == ["cnet", "rnet"]  # ANet came from the cache
+    monkeypatch.setenv(TR.FEATURE_CACHE_ENV, str(tmp_path / "alone"))
+    alone = variant.train(root, tmp_path / "nc-alone.pt", profile=tiny_profile(), progress=False)
+    a, b, c = _weights(first), _weights(shared), _weights(alone)
+    assert all(torch.equal(b[k], c[k]) for k in b)  # sharing changes nothing
+    anet = [k for k in a if k.startswith("anet.")]
+    assert anet and all(torch.equal(a[k], b[k]) for k in anet)
+    assert TR.load_grip(shared)[1]["curves"]["anet"] == TR.load_grip(first)[1]["curves"]["anet"]
+
+
 def test_resume_continues_an_interrupted_training(root, trained, tmp_path, monkeypatch):
     out = tmp_path / "resumed.pt"
     real_fit = TR.fit

@@ -1,0 +1,73 @@
+"""The whole GRIP pipeline at the paper's widths (hidden 2048, width 1024, latent 256) on CPU.
+
+ANet (autoregressive, one step per frame), stage-one sensors (ambient + proximity),
+CNet on frame pairs, proximity recomputed on CNet's hands, RNet on interaction frames,
+both hands. Weights are random (speed does not depend on them); the residual ANet head
+is zeroed as in training so the wrists stay on the sequence.
+
+- offline: one 120-frame grasping sequence per call -> frames/s (``extra_info``);
+- online: the latency of one new frame, measured as the pipeline on the 2-frame window
+  (t-1, t) in streaming mode: an upper bound, as it recomputes frame t-1's sensors too.
+
+Run: ``pytest tests/benchmarks/test_bench_grip_pipeline.py -o addopts="" --benchmark-only -s``.
+Measures; asserts nothing about time. Compare with ``grip_bench.grip.flops`` (the FLOPs
+floor of the networks alone).
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from grip_bench.data.grab_io import read_grab
+from grip_bench.data.library import ObjectLibrary
+from grip_bench.grip import ANetConfig, CNetConfig, RNetConfig
+from grip_bench.grip.flops import flops_per_frame
+from grip_bench.grip.pipeline import GripPipeline, Options
+from grip_bench.grip.train import Variant
+from tests.eval_fixtures import grasp_dataset
+
+T = 120
+
+
+def paper_nets() -> dict:
+    torch.manual_seed(0)
+    nets = {"anet": ANetConfig().build(), "cnet": CNetConfig().build(), "rnet": RNetConfig().build()}
+    torch.nn.init.zeros_(nets["anet"].decoder.head.weight)
+    torch.nn.init.zeros_(nets["anet"].decoder.head.bias)
+    return {k: n.eval() for k, n in nets.items()}
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    root = tmp_path_factory.mktemp("pipeline")
+    seq = read_grab(grasp_dataset(root, T=T)[0])
+    lib = ObjectLibrary(root)
+    lib.field(seq.obj_name)  # the distance field is built once per object, outside the timing
+    return seq, lib
+
+
+def _flops() -> float:
+    return float(sum(flops_per_frame(c) for c in (CNetConfig(), ANetConfig(), RNetConfig())))
+
+
+def test_bench_pipeline_offline(benchmark, scene):
+    seq, lib = scene
+    pipe = GripPipeline(paper_nets(), Options(Variant()))
+    pipe.run(seq, lib)  # warm-up: allocations, lazy imports
+    out = benchmark.pedantic(lambda: pipe.run(seq, lib), rounds=3, iterations=1)
+    assert out.n_frames == T
+    benchmark.extra_info.update(frames=T, threads=torch.get_num_threads(), net_flops_per_frame=_flops())
+    if benchmark.stats is not None:
+        benchmark.extra_info["frames_per_s"] = T / benchmark.stats.stats.mean
+
+
+def test_bench_pipeline_online_frame(benchmark, scene):
+    seq, lib = scene
+    window = seq.frames(T // 2 - 1, T // 2 + 1)
+    pipe = GripPipeline(paper_nets(), Options(Variant(), online=True))
+    pipe.run(window, lib)
+    out = benchmark.pedantic(lambda: pipe.run(window, lib), rounds=20, iterations=1)
+    assert out.n_frames == 2
+    if benchmark.stats is not None:
+        benchmark.extra_info["latency_ms"] = 1e3 * benchmark.stats.stats.mean
