@@ -59,20 +59,30 @@ def _t(a) -> torch.Tensor:
 
 
 # --- ANet ---------------------------------------------------------------------------------
-@torch.no_grad()
 def denoise_arms(anet, noisy: np.ndarray, online: bool = False) -> np.ndarray:
     """Autoregressive arm denoising ``(T, 4, 6) -> (T, 4, 6)`` (ANet predicts corrections).
 
     Step t feeds the denoised frame t and noisy frames t+1..t+5 (clamped at the end, or at
     t+1 online) and keeps the corrected frame t+1. Frame 0 has no clean predecessor and stays.
     """
-    T, n = len(noisy), anet.cfg.n_future
-    out = noisy.copy()
-    for t in range(T - 1):
-        last = t + 1 if online else T - 1
-        fut = np.minimum(np.arange(t + 1, t + 1 + n), last)
-        res = anet(_t(out[t])[None], _t(noisy[fut])[None])
-        out[t + 1] = noisy[t + 1] + res.arms[0, 1].numpy()
+    return denoise_arms_many(anet, [noisy], online)[0]
+
+
+@torch.no_grad()
+def denoise_arms_many(anet, noisy: list[np.ndarray], online: bool = False) -> list[np.ndarray]:
+    """:func:`denoise_arms` of several sequences ``[(T_i, 4, 6)]``: step t of every sequence
+    still running is one batched ANet call. The recursion is sequential in t, so batching
+    across sequences is what keeps a wide ANet from being bound by one small call per frame."""
+    n = anet.cfg.n_future
+    out = [np.array(x, copy=True) for x in noisy]
+    lengths = np.array([len(x) for x in noisy])
+    for t in range(int(lengths.max(initial=0)) - 1):
+        live = np.flatnonzero(lengths - 1 > t)
+        fut = [np.minimum(np.arange(t + 1, t + 1 + n), t + 1 if online else lengths[i] - 1) for i in live]
+        res = anet(_t(np.stack([out[i][t] for i in live])),
+                   _t(np.stack([noisy[i][f] for i, f in zip(live, fut)]))).arms[:, 1].numpy()
+        for k, i in enumerate(live):
+            out[i][t + 1] = noisy[i][t + 1] + res[k]
     return out
 
 
@@ -133,14 +143,19 @@ class GripPipeline:
 
     def arms_and_wrists(self, seq) -> tuple[np.ndarray, dict]:
         """(body_pose (T, 63), wrists {side: (rot, transl)}) after ANet (or as given)."""
-        wrists = {s: wrist_frames(seq, s) for s in NET_SIDES}
-        body_pose = np.asarray(seq.body["body_pose"], np.float64)
+        return self.arms_and_wrists_many([seq])[0]
+
+    def arms_and_wrists_many(self, seqs) -> list[tuple[np.ndarray, dict]]:
+        """:meth:`arms_and_wrists` of several sequences, ANet batched across them."""
+        wrists = [{s: wrist_frames(seq, s) for s in NET_SIDES} for seq in seqs]
+        poses = [np.asarray(seq.body["body_pose"], np.float64) for seq in seqs]
         if not self.opt.use_anet:
-            return body_pose, wrists
-        start = arms_to_wrists(seq, wrists) if self.opt.refine else body_pose
-        arms = denoise_arms(self.nets["anet"], arms_6d(start), self.opt.online)
-        new_pose = set_arms(start, arms)
-        return new_pose, moved_wrists(seq, start, new_pose, wrists)
+            return list(zip(poses, wrists))
+        if self.opt.refine:
+            poses = [arms_to_wrists(seq, w) for seq, w in zip(seqs, wrists)]
+        arms = denoise_arms_many(self.nets["anet"], [arms_6d(p) for p in poses], self.opt.online)
+        new = [set_arms(p, a) for p, a in zip(poses, arms)]
+        return [(n, moved_wrists(seq, p, n, w)) for seq, p, n, w in zip(seqs, poses, new, wrists)]
 
     def cnet_poses(self, seq, library, body_pose, wrists) -> np.ndarray:
         """Stage one + CNet: both hands' poses ``(T, 2, 15, 6)``."""
@@ -192,9 +207,19 @@ class GripPipeline:
 
     def run(self, seq, library):
         """The input sequence with GRIP's hands (and ANet's arms and wrists when enabled)."""
-        if seq.n_frames < 1:
-            raise InputError("sequence has no frames", seq.name)
-        body_pose, wrists = self.arms_and_wrists(seq)
+        return self.run_many([seq], library)[0]
+
+    def run_many(self, seqs, library) -> list:
+        """:meth:`run` over several sequences (throughput mode): ANet's recursion is batched
+        across them, the rest runs per sequence, batched over its frames. Equal to ``run``
+        on each up to float rounding (BLAS picks kernels by batch size)."""
+        for seq in seqs:
+            if seq.n_frames < 1:
+                raise InputError("sequence has no frames", seq.name)
+        arms = self.arms_and_wrists_many(seqs)
+        return [self._hands(seq, library, *a) for seq, a in zip(seqs, arms)]
+
+    def _hands(self, seq, library, body_pose, wrists):
         if self.opt.refine:
             poses = gt_poses_6d(seq)  # the given (noisy) hands
         else:

@@ -5,7 +5,8 @@ CNet on frame pairs, proximity recomputed on CNet's hands, RNet on interaction f
 both hands. Weights are random (speed does not depend on them); the residual ANet head
 is zeroed as in training so the wrists stay on the sequence.
 
-- offline: one 120-frame grasping sequence per call -> frames/s (``extra_info``);
+- offline: 1 or 16 copies of a 120-frame grasping sequence per call -> frames/s
+  (``extra_info``); with 16, ANet's per-frame recursion is batched across sequences;
 - online: the latency of one new frame, measured as the pipeline on the 2-frame window
   (t-1, t) in streaming mode: an upper bound, as it recomputes frame t-1's sensors too.
 
@@ -15,6 +16,8 @@ floor of the networks alone).
 """
 
 from __future__ import annotations
+
+import os
 
 import pytest
 import torch
@@ -44,6 +47,7 @@ def scene(tmp_path_factory):
     seq = read_grab(grasp_dataset(root, T=T)[0])
     lib = ObjectLibrary(root)
     lib.field(seq.obj_name)  # the distance field is built once per object, outside the timing
+    torch.set_num_threads(os.cpu_count() or 1)  # the fixture's grasp search pins one thread
     return seq, lib
 
 
@@ -51,15 +55,19 @@ def _flops() -> float:
     return float(sum(flops_per_frame(c) for c in (CNetConfig(), ANetConfig(), RNetConfig())))
 
 
-def test_bench_pipeline_offline(benchmark, scene):
+@pytest.mark.parametrize("n_seqs", [1, 16])
+def test_bench_pipeline_offline(benchmark, scene, n_seqs):
+    """``n_seqs`` sequences per call (``run_many``: ANet's recursion batched across them)."""
     seq, lib = scene
+    seqs = [seq] * n_seqs
     pipe = GripPipeline(paper_nets(), Options(Variant()))
-    pipe.run(seq, lib)  # warm-up: allocations, lazy imports
-    out = benchmark.pedantic(lambda: pipe.run(seq, lib), rounds=3, iterations=1)
-    assert out.n_frames == T
-    benchmark.extra_info.update(frames=T, threads=torch.get_num_threads(), net_flops_per_frame=_flops())
+    pipe.run_many(seqs[:2], lib)  # warm-up: allocations, lazy imports
+    out = benchmark.pedantic(lambda: pipe.run_many(seqs, lib), rounds=3, iterations=1)
+    assert len(out) == n_seqs and out[0].n_frames == T
+    frames = T * n_seqs
+    benchmark.extra_info.update(frames=frames, threads=torch.get_num_threads(), net_flops_per_frame=_flops())
     if benchmark.stats is not None:
-        benchmark.extra_info["frames_per_s"] = T / benchmark.stats.stats.mean
+        benchmark.extra_info["frames_per_s"] = frames / benchmark.stats.stats.mean
 
 
 def test_bench_pipeline_online_frame(benchmark, scene):
