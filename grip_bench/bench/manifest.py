@@ -62,9 +62,22 @@ def platform_info() -> dict:
             platform.python_implementation(), "cpu_count": os.cpu_count()}
 
 
+def peak_memory_mib() -> dict:
+    """Peak resident memory (MiB) of this process and of its largest finished child
+    (evaluation and generation workers), from ``getrusage``; empty where unavailable."""
+    try:
+        import resource
+    except ImportError:  # not on Windows
+        return {}
+    scale = 1 / 1024 if sys.platform != "darwin" else 1 / 2**20  # KiB on Linux, bytes on macOS
+    return {"self": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale, 1),
+            "children": round(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * scale, 1)}
+
+
 def build_manifest(profile: dict, config: dict, seeds: dict, data_hash: str,
                    stage_times: dict) -> dict:
-    """The manifest as a plain dict (JSON-ready); ``stage_times`` are seconds per stage."""
+    """The manifest as a plain dict (JSON-ready); ``stage_times`` are seconds per stage,
+    ``peak_memory_mib`` the peak resident memory up to now."""
     versions = package_versions()
     versions["python"] = platform.python_version()
     return {
@@ -80,6 +93,7 @@ def build_manifest(profile: dict, config: dict, seeds: dict, data_hash: str,
         "seeds": jsonable(seeds),
         "data_hash": data_hash,
         "stage_times": jsonable(stage_times),
+        "peak_memory_mib": peak_memory_mib(),
     }
 
 

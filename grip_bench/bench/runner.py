@@ -1049,8 +1049,14 @@ def run_manifest(st: RunState) -> dict:
 
 def summary_lines(st: RunState) -> list[str]:
     """What was reused and what was computed, per kind, plus the stage times."""
+    from .manifest import peak_memory_mib
+
     lines = [st.cache.summary_line()]
     lines += [f"  {name:<9} {secs:8.2f} s" for name, secs in st.stage_times.items()]
+    mem = peak_memory_mib()
+    if mem:
+        lines.append(f"  peak memory: {mem['self']:.0f} MiB (run), {mem['children']:.0f} MiB "
+                     "(largest worker)")
     return lines
 
 

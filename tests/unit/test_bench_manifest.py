@@ -17,7 +17,8 @@ from grip_bench.bench.manifest import (
 from grip_bench.errors import InputError
 
 KEYS = {"schema", "grip_bench_version", "versions", "git", "platform", "cpu_count",
-        "python_executable", "profile", "config", "seeds", "data_hash", "stage_times"}
+        "python_executable", "profile", "config", "seeds", "data_hash", "stage_times",
+        "peak_memory_mib"}
 VERSIONS = {"grip-bench", "python", "numpy", "torch", "trimesh", "manifold3d", "mujoco",
             "pandas", "matplotlib"}
 
@@ -37,6 +38,7 @@ def test_keys_and_versions():
     assert set(m["git"]) == {"revision", "dirty"}
     assert m["cpu_count"] >= 1 and m["config"]["methods"] == ["grip", "gt"]
     assert m["data_hash"] == "abc123" and m["stage_times"]["predict"] == 1.5
+    assert m["peak_memory_mib"]["self"] > 10  # this Python process with numpy loaded
 
 
 def test_missing_package_is_null():
