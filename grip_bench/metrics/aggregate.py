@@ -197,19 +197,52 @@ def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool) -> 
             torch.set_num_threads(threads)
             bar.close()
         return results
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                             initializer=_init_worker, initargs=(str(gt_dir),)) as pool:
-        futures = {pool.submit(run_task, t): i for i, t in enumerate(tasks)}
-        try:
-            for fut in as_completed(futures):
-                results[futures[fut]] = fut.result()
-                bar.update()
-        finally:
-            bar.close()
+    pool = worker_pool(workers, gt_dir)
+    futures = {pool.submit(run_task, t): i for i, t in enumerate(tasks)}
+    try:
+        for fut in as_completed(futures):
+            results[futures[fut]] = fut.result()
+            bar.update()
+    except BaseException as e:
+        for fut in futures:
+            fut.cancel()
+        if isinstance(e, BrokenProcessPool) or not isinstance(e, Exception):
+            close_pools()  # a dead worker or an interrupt: never reuse this pool
+        raise
+    finally:
+        bar.close()
     return results
+
+
+# One spawn pool per (workers, ground-truth folder), kept for the life of the process: a
+# run evaluates dozens of prediction sets against the same ground truth, and a fresh pool
+# per set would pay the workers' start-up (imports) and their object caches every time.
+_POOLS: dict = {}
+
+
+def worker_pool(workers: int, gt_dir: Path):
+    """The process pool for ``gt_dir`` (created on first use; others are shut down)."""
+    import atexit
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    key = (int(workers), str(Path(gt_dir).resolve()))
+    if key not in _POOLS:
+        if not _POOLS:
+            atexit.register(close_pools)
+        close_pools()
+        _POOLS[key] = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                          initializer=_init_worker, initargs=(str(gt_dir),))
+    return _POOLS[key]
+
+
+def close_pools() -> None:
+    """Shut down the kept worker pools (at exit, or after a failure)."""
+    while _POOLS:
+        _POOLS.popitem()[1].shutdown(wait=True, cancel_futures=True)
 
 
 # ------------------------------------------------------------------ entry point
@@ -335,5 +368,5 @@ def read_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 
 def default_workers() -> int:
-    """Half the CPUs (MuJoCo and manifold3d are single-threaded per sequence), at least 1."""
-    return max(1, (os.cpu_count() or 2) // 2)
+    """One process per CPU (each single-threaded: MuJoCo and manifold3d are), at most 8."""
+    return max(1, min(8, os.cpu_count() or 1))
