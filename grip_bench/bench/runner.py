@@ -143,6 +143,7 @@ class RunConfig:
     model_path: str | None = None
     progress: bool = True
     notes: tuple[str, ...] = ()
+    methods_explicit: bool = False  # named by --methods or [run] methods, not derived from tables
 
     @property
     def seed(self) -> int:
@@ -222,7 +223,8 @@ def make_config(profile: str, *, data=None, out=None, methods=None, tables=None,
         data=Path(data) if data is not None else None, settings=settings,
         tables=chosen_tables, methods=chosen_methods,
         perturbations=tuple(settings["perturbations"]), device=device, workers=workers,
-        model_path=model_path, progress=progress, notes=tuple(notes))
+        model_path=model_path, progress=progress, notes=tuple(notes),
+        methods_explicit=bool(methods or settings["methods"]))
 
 
 def _check_device(device: str) -> None:
@@ -459,11 +461,22 @@ def _predict_eval_units(cfg, plan_units, data, sets, ckpts, dataset) -> None:
                  [pred.key, data.key], prediction=pred.key, gt=data.key, labels=labels_)
 
 
+def timed_methods(cfg: RunConfig) -> list[str]:
+    """Methods the runtime stage times: all of them when named explicitly, else those the
+    chosen runtime tables list (timing every ablation variant would tell nothing new)."""
+    from .tables import TABLES
+
+    if cfg.methods_explicit:
+        return list(cfg.methods)
+    named = {m for t in cfg.tables if TABLES.get(t).source == "runtime" for m in TABLES.get(t).methods()}
+    return [m for m in cfg.methods if m in named]
+
+
 def _runtime_units(cfg, data: Unit, ckpts, units: list[Unit]) -> None:
     from .methods import METHODS
 
     s = cfg.settings
-    for name in cfg.methods:
+    for name in timed_methods(cfg):
         spec = METHODS.get(name)
         ckpt = ckpts[name]
         inputs = {**_method_inputs(spec, cfg), "checkpoint": ckpt.key if ckpt else None,
