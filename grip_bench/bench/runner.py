@@ -662,9 +662,8 @@ def train_method(st: RunState, unit: Unit, tmp: Path) -> dict:
     method that checkpoints its progress (GRIP's ``<out>.partial``) resumes after a kill;
     the finished file is then moved into the unit.
     """
-    from .methods import METHODS
-
     from ..grip.train import FEATURE_CACHE_ENV
+    from .methods import METHODS
 
     work = st.cache.root / "work" / unit.key
     work.mkdir(parents=True, exist_ok=True)

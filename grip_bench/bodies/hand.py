@@ -369,7 +369,31 @@ def _canonical(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @functools.lru_cache(maxsize=1)
 def _template_mesh() -> tuple[np.ndarray, np.ndarray]:
-    """The right-hand template mesh at the default size (V, 3) metres, (F, 3) int64."""
+    """The right-hand template mesh at the default size (V, 3) metres, (F, 3) int64.
+
+    Read from the on-disk geometry cache (``grip_bench.geometry.cache``) when it holds the
+    mesh of this very module source, hand length and meshing libraries; built otherwise.
+    """
+    import hashlib
+    from pathlib import Path
+
+    from grip_bench.geometry.cache import cached_arrays, package_version
+
+    h = hashlib.sha256(Path(__file__).read_bytes())
+    h.update(repr([constants.HAND_LENGTH] + [package_version(d) for d in
+                  ("manifold3d", "libigl", "numpy", "scipy")]).encode())
+
+    def ok(a: dict) -> bool:
+        v, f = a["vertices"], a["faces"]
+        return (v.ndim == 2 and v.shape[1] == 3 and f.ndim == 2 and f.shape[1] == 3 and len(f) > 0
+                and f.dtype == np.int64 and 0 <= f.min() and f.max() < len(v))
+
+    a = cached_arrays("hand_template", h.hexdigest(), _build_template_mesh,
+                      names=("vertices", "faces"), validate=ok)
+    return a["vertices"], a["faces"]
+
+
+def _build_template_mesh() -> dict[str, np.ndarray]:
     import igl
 
     v, f = _level_set_mesh()
@@ -379,7 +403,7 @@ def _template_mesh() -> tuple[np.ndarray, np.ndarray]:
     check = manifold3d.Manifold(manifold3d.Mesh(v.astype(np.float32), f.astype(np.uint32)))
     if check.status() != manifold3d.Error.NoError or check.genus() != 0:
         raise RuntimeError(f"hand template is not a genus-0 manifold ({check.status()}, genus {check.genus()})")
-    return v, f
+    return {"vertices": v, "faces": f}
 
 
 # --- Skinning weights, labels, sensor vertices ----------------------------------
@@ -722,14 +746,15 @@ class ProceduralHand(torch.nn.Module):
         b = pose.shape[0]
         go = self._optional(global_orient, "global_orient", b, pose)
         tr = self._optional(transl, "transl", b, pose)
+        rot = axis_angle_to_matrix(go)
         verts, joints = [], []
         for s in range(0, max(b, 1), _CHUNK):
-            v, j = self._lbs(pose[s : s + _CHUNK])
+            v, j = self._lbs(pose[s : s + _CHUNK], rot[s : s + _CHUNK], tr[s : s + _CHUNK])
             verts.append(v)
             joints.append(j)
-        verts, joints = torch.cat(verts), torch.cat(joints)
-        rot = axis_angle_to_matrix(go)
-        return verts @ rot.transpose(1, 2) + tr[:, None], joints @ rot.transpose(1, 2) + tr[:, None]
+        if len(verts) == 1:
+            return verts[0], joints[0]
+        return torch.cat(verts), torch.cat(joints)
 
     def _optional(self, x, name: str, batch: int, like: torch.Tensor) -> torch.Tensor:
         """A validated (B, 3) tensor, zeros when ``x`` is None."""
@@ -737,18 +762,40 @@ class ProceduralHand(torch.nn.Module):
             return like.new_zeros(batch, 3)
         return _check_tensor(x, name, ((-1, 3),), batch).to(like)
 
-    def _lbs(self, pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Skin the template: pose (B, 15, 3) -> vertices (B, V, 3), joints (B, 21, 3)."""
+    def _lbs(self, pose: torch.Tensor, rot: torch.Tensor | None = None,
+             transl: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Skin the template: pose (B, 15, 3) -> vertices (B, V, 3), joints (B, 21, 3).
+
+        rot (B, 3, 3), transl (B, 3): the wrist's world rotation and position (None: the hand
+        frame). LBS ``v' = sum_j w_vj (R_j v + s_j)`` is one matrix product per batch: the
+        pose-free factors ``[w_vj v_c | w_vj]`` (V, 64) times the stacked ``[R_j^T ; s_j]``
+        (64, 3 B), with the world rotation folded into the 16 joint transforms first. No
+        per-vertex 3 x 4 matrix is formed and no (B, V, 3) x (3, 3) product is left to do
+        (the same values as blending per-vertex matrices, up to float rounding).
+        """
         rest = self.rest_joints.to(pose)
-        rot, pos = self.kinematics(pose)
+        rot_j, pos = self.kinematics(pose)
+        b = pose.shape[0]
         # per-joint transform mapping rest positions to posed ones: x -> R x + (p - R j)
-        shift = pos - torch.einsum("njac,jc->nja", rot, rest)
-        blend = torch.cat([rot.flatten(2), shift], 2)  # (B, 16, 12)
-        per_vertex = torch.einsum("vj,bjk->bvk", self.weights.to(pose), blend)
-        r = per_vertex[..., :9].reshape(*per_vertex.shape[:2], 3, 3)
-        verts = torch.einsum("nvac,vc->nva", r, self.template_vertices.to(pose)) + per_vertex[..., 9:]
-        tips = verts[:, self.tip_index]
-        return verts, torch.cat([pos, tips], 1)
+        shift = pos - (rot_j @ rest[:, :, None])[..., 0]  # (B, 16, 3)
+        # X[b, (j, c), a] = R[b, j, a, c]; then the 16 shifts
+        x = torch.cat([rot_j.transpose(2, 3).reshape(b, 48, 3), shift], 1)  # (B, 64, 3)
+        if rot is not None:
+            x = x @ rot.transpose(1, 2)  # world R (R_j v + s_j): the rows of X times R^T
+            pos = pos @ rot.transpose(1, 2)
+        skin = self._skin_matrix(pose)
+        verts = skin @ x.permute(1, 0, 2).reshape(64, 3 * b)  # (V, 3 B)
+        verts = verts.reshape(len(skin), b, 3).transpose(0, 1)
+        if transl is not None:
+            verts = verts + transl[:, None]
+            pos = pos + transl[:, None]
+        verts = verts.contiguous()
+        return verts, torch.cat([pos, verts[:, self.tip_index]], 1)
+
+    def _skin_matrix(self, like: torch.Tensor) -> torch.Tensor:
+        """``[w_vj v_c | w_vj]`` (V, 64) in ``like``'s dtype/device: the pose-free LBS factors."""
+        w, v = self.weights.to(like), self.template_vertices.to(like)
+        return torch.cat([(w[:, :, None] * v[:, None, :]).reshape(len(w), 48), w], 1)
 
     def kinematics(self, pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Forward kinematics in the hand frame (wrist at rest, no global_orient).

@@ -29,6 +29,7 @@ from grip_bench import constants
 __all__ = ["DistanceField"]
 
 _CHUNK = 1 << 18  # points per query chunk: bounds the temporaries of huge batched calls
+_BOX_MARGIN = 1e-3  # m; exact queries this far outside the mesh's bounding box skip the sign test
 _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
 
 
@@ -108,6 +109,28 @@ class DistanceField:
         dist = np.where(side < 0, -1.0, 1.0) * np.sqrt(sqd)
         return dist, closest, face, normal
 
+    def _exact_values(self, p: np.ndarray) -> np.ndarray:
+        """``_exact(p)[0]`` alone: the signed distances ``(N,)``.
+
+        Points more than ``_BOX_MARGIN`` outside the mesh's bounding box are outside the
+        object, so their sign test (the pseudonormal of the closest feature, ~10% of an exact
+        query) is skipped: the same values, as the test would give +1 there.
+        """
+        if len(p) == 0:
+            return np.zeros(0)
+        sqd, face, closest = self._tree.squared_distance(self._V, self._F, p)
+        dist = np.sqrt(sqd)
+        lo, hi = self._V.min(0) - _BOX_MARGIN, self._V.max(0) + _BOX_MARGIN
+        near = np.ones(len(p), dtype=bool)
+        for k in range(3):
+            near &= p[:, k] >= lo[k]
+            near &= p[:, k] <= hi[k]
+        if near.any():
+            normal = self._pseudonormal(face[near], closest[near])
+            side = np.einsum("ij,ij->i", p[near] - closest[near], normal)
+            dist[near] = np.where(side < 0, -1.0, 1.0) * dist[near]
+        return dist
+
     def _pseudonormal(self, face: np.ndarray, c: np.ndarray) -> np.ndarray:
         """Angle-weighted pseudonormal of the face, edge or vertex that holds each closest point."""
         tri = self._V[self._F[face]]  # (N, 3, 3)
@@ -132,7 +155,7 @@ class DistanceField:
     def exact_signed_distance(self, points):
         """Exact signed distance ``(...)`` (m, negative inside) of points ``(..., 3)``."""
         p, lead, back = _to_numpy(points)
-        return back(self._exact(p)[0].reshape(lead))
+        return back(self._exact_values(p).reshape(lead))
 
     def closest_points(self, points):
         """Closest surface points ``(..., 3)``, signed distances ``(...)`` (m) and face ids ``(...)``.
@@ -153,7 +176,56 @@ class DistanceField:
         return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
 
     def _build_grid(self) -> None:
-        """Exact values near the surface, coarse values beyond, and the unreliable-cell mask."""
+        """The grid of ``_grid_arrays``, read from the geometry cache when it holds it.
+
+        The cache keeps the grid_sample layouts themselves: ``sdf_grid`` (values and the
+        unreliable-cell flags) and ``sdf_grad`` (node gradients, 70% of the bytes, written and
+        read only once ``gradient`` is used: the sensors and the evaluation never need them).
+        """
+        from .cache import load_arrays, mesh_key, package_version, save_arrays
+
+        params = {"spacing": self.spacing, "padding": self.padding,
+                  "exact_depth": constants.SDF_EXACT_DEPTH, "coarse": constants.SDF_COARSE_FACTOR,
+                  "kink": constants.SDF_KINK_TOL, "bary": constants.SDF_BARY_TOL,
+                  "igl": package_version("libigl")}
+        self._grid_key = mesh_key("sdf_grid", self._V, self._F, params)
+        self._gvol_data, self._gvol_saved = None, True
+        a = load_arrays("sdf_grid", self._grid_key, ("origin", "shape", "vol", "unreliable"),
+                        _grid_entry_ok)
+        if a is None:
+            built = self._grid_arrays()
+            shape = tuple(int(x) for x in built["shape"])
+            a = {"origin": built["origin"], "shape": built["shape"],
+                 "vol": _vol_layout(built["values"], shape), "unreliable": built["unreliable"]}
+            save_arrays("sdf_grid", self._grid_key, a)
+            self._gvol_data = torch.from_numpy(_gvol_layout(built["grad"], shape))[None]
+            self._gvol_saved = False
+        self.origin, self.shape = a["origin"], tuple(int(x) for x in a["shape"])
+        self._unreliable = a["unreliable"]
+        self._to_torch_volumes(a["vol"], self._unreliable)
+
+    @property
+    def _gvol(self) -> torch.Tensor:
+        """Node gradients ``(1, 3, z, y, x)`` for grid_sample, loaded (or rebuilt) on first use."""
+        from .cache import load_arrays, save_arrays
+
+        if self._gvol_data is None:
+            n = (3, *self.shape[::-1])
+            g = load_arrays("sdf_grad", self._grid_key, ("gvol",), lambda a: a["gvol"].shape == n)
+            if g is None:
+                g = {"gvol": _gvol_layout(self._grid_arrays()["grad"], self.shape)}
+                self._gvol_saved = False
+            self._gvol_data = torch.from_numpy(g["gvol"])[None]
+        if not self._gvol_saved:
+            save_arrays("sdf_grad", self._grid_key, {"gvol": self._gvol_data[0].numpy()})
+            self._gvol_saved = True
+        return self._gvol_data
+
+    def _grid_arrays(self) -> dict[str, np.ndarray]:
+        """Exact values near the surface, coarse values beyond, and the unreliable-cell mask.
+
+        Values and gradients are returned as float32, the precision the grid is sampled in.
+        """
         h = self.spacing
         lo = self._V.min(0) - self.padding
         n = np.ceil((self._V.max(0) + self.padding - lo) / h).astype(int) + 1
@@ -176,8 +248,10 @@ class DistanceField:
         far_grad = np.stack(np.gradient(grid, h), -1).reshape(-1, 3)
         grad[~near] = far_grad[~near]
         grad /= np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-12)
-        self._unreliable = self._kink_cells(grad.reshape(*self.shape, 3), near.reshape(self.shape))
-        self._to_torch_volumes(values, grad, self._unreliable)
+        unreliable = self._kink_cells(grad.reshape(*self.shape, 3), near.reshape(self.shape))
+        return {"origin": np.asarray(lo, np.float64), "shape": np.array(self.shape, np.int64),
+                "values": values.astype(np.float32), "grad": grad.astype(np.float32),
+                "unreliable": unreliable}
 
     def _coarse_fill(self, nodes: np.ndarray, band: float) -> np.ndarray:
         """Values for nodes beyond the exact band: trilinear from an exact coarse grid, |d| >= band."""
@@ -217,13 +291,10 @@ class DistanceField:
         flags[:-1, :-1, :-1] = all_near & (spread > limit)
         return flags.ravel()
 
-    def _to_torch_volumes(self, values: np.ndarray, grad: np.ndarray, flags: np.ndarray) -> None:
-        """grid_sample layouts: ``(1, C, z, y, x)`` volumes and the cell-flag volume."""
-        self._vol = torch.from_numpy(values.reshape(self.shape).astype(np.float32).T.copy())[
-            None, None
-        ]
-        g = grad.reshape(*self.shape, 3).astype(np.float32).transpose(3, 2, 1, 0)
-        self._gvol = torch.from_numpy(np.ascontiguousarray(g))[None]
+    def _to_torch_volumes(self, vol: np.ndarray, flags: np.ndarray) -> None:
+        """grid_sample layouts: the ``(1, 1, z, y, x)`` value volume (from ``_vol_layout``) and
+        the cell-flag volume, plus the coordinate transforms."""
+        self._vol = torch.from_numpy(vol)[None, None]
         # 1 where the cell's trilinear value is trusted; zero padding makes outside points 0 too
         trusted = ~flags.reshape(self.shape)[:-1, :-1, :-1]
         self._trusted = torch.from_numpy(trusted.astype(np.float32).T.copy())[None, None]
@@ -273,7 +344,7 @@ class DistanceField:
                     outside[outside] = ~beyond  # beyond the far grid too: exact
                 exact &= ~outside
             if exact.any():
-                d[exact] = self._exact(q[exact])[0]
+                d[exact] = self._exact_values(q[exact])
             out[s : s + _CHUNK] = d
         return back(out.reshape(lead))
 
@@ -284,14 +355,36 @@ class DistanceField:
         return self._far
 
     def _outside_grid(self, q: np.ndarray) -> np.ndarray:
-        """Points ``(N, 3)`` beyond the grid's nodes ``(N,)`` bool."""
+        """Points ``(N, 3)`` beyond the grid's nodes ``(N,)`` bool (column by column: 7x faster
+        than comparing whole rows)."""
+        lo = self.origin
         hi = self.origin + self.spacing * (np.array(self.shape) - 1)
-        return ((q < self.origin) | (q > hi)).any(axis=1)
+        out = q[:, 0] < lo[0]
+        out |= q[:, 0] > hi[0]
+        for k in (1, 2):
+            out |= q[:, k] < lo[k]
+            out |= q[:, k] > hi[k]
+        return out
 
     def _box_distance(self, q: np.ndarray) -> np.ndarray:
-        """Distance ``(N,)`` from points to the mesh's bounding box (a lower bound of the SDF outside)."""
+        """Distance ``(N,)`` from points to the mesh's bounding box (a lower bound of the SDF outside).
+
+        ``norm(max(lo - q, q - hi, 0), axis=1)`` computed column by column, summing the squares
+        in the same order (x, y, z): the same values, 8x faster.
+        """
         lo, hi = self.mesh.bounds
-        return np.linalg.norm(np.maximum(np.maximum(lo - q, q - hi), 0.0), axis=1)
+        total = None
+        for k in range(3):
+            c = np.ascontiguousarray(q[:, k])
+            x = lo[k] - c
+            np.maximum(x, c - hi[k], out=x)
+            np.maximum(x, 0.0, out=x)
+            x *= x
+            if total is None:
+                total = x
+            else:
+                total += x
+        return np.sqrt(total, out=total)
 
     def gradient(self, points):
         """Unit SDF gradient ``(..., 3)`` (outward surface normal direction) at points ``(..., 3)``.
@@ -316,6 +409,26 @@ class DistanceField:
     def unreliable_fraction(self) -> float:
         """Share of grid cells answered by the exact path (diagnostic)."""
         return float(1.0 - self._trusted.mean())
+
+
+def _vol_layout(values: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
+    """Node values ``(N,)`` (x-major) as the contiguous float32 ``(z, y, x)`` grid_sample volume."""
+    return values.reshape(shape).astype(np.float32).T.copy()
+
+
+def _gvol_layout(grad: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
+    """Node gradients ``(N, 3)`` as the contiguous float32 ``(3, z, y, x)`` grid_sample volume."""
+    return np.ascontiguousarray(grad.reshape(*shape, 3).astype(np.float32).transpose(3, 2, 1, 0))
+
+
+def _grid_entry_ok(a: dict) -> bool:
+    """Consistent shapes of a cached ``sdf_grid`` entry."""
+    shape = tuple(int(x) for x in a["shape"])
+    if len(shape) != 3 or min(shape) < 2:
+        return False
+    return (a["origin"].shape == (3,) and a["vol"].shape == shape[::-1]
+            and a["vol"].dtype == np.float32 and a["vol"].flags.c_contiguous
+            and a["unreliable"].shape == (int(np.prod(shape)),) and a["unreliable"].dtype == bool)
 
 
 def _trilinear(
@@ -343,13 +456,26 @@ class _FarGrid:
 
     @classmethod
     def build(cls, field: DistanceField, spacing: float, padding: float) -> _FarGrid:
+        from .cache import cached_arrays, mesh_key, package_version
+
         lo = field._V.min(0) - padding
         n = np.ceil((field._V.max(0) + padding - lo) / spacing).astype(int) + 1
         shape = tuple(int(x) for x in n)
-        nodes = field._node_coords(shape, lo, spacing)
-        values = np.concatenate([field._exact(nodes[i : i + 65536])[0]
-                                 for i in range(0, len(nodes), 65536)])
-        return cls(lo, shape, spacing, values)
+
+        def values() -> dict[str, np.ndarray]:
+            nodes = field._node_coords(shape, lo, spacing)
+            v = np.concatenate([field._exact(nodes[i : i + 65536])[0]
+                                for i in range(0, len(nodes), 65536)])
+            return {"values": v.astype(np.float32)}  # the precision the grid is sampled in
+
+        params = {"spacing": float(spacing), "padding": float(padding),
+                  "bary": constants.SDF_BARY_TOL, "igl": package_version("libigl")}
+        key = mesh_key("sdf_far", field._V, field._F, params)
+        def ok(a: dict) -> bool:
+            return a["values"].shape == (int(np.prod(shape)),)
+
+        return cls(lo, shape, spacing,
+                   cached_arrays("sdf_far", key, values, names=("values",), validate=ok)["values"])
 
     def query(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Interpolated distances ``(N,)`` and a mask ``(N,)`` of points beyond this grid."""

@@ -20,6 +20,7 @@ Whole splits are cached in one ``.npz`` keyed by the dataset hash and the featur
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import os
@@ -34,7 +35,7 @@ from .. import constants as C
 from ..bodies.layouts import SMPLX_INDEX
 from ..errors import InputError
 from ..geometry.rotations import axis_angle_to_matrix, matrix_to_rotation_6d
-from ..sensors import NET_SIDES, stage_one, wrist_frames
+from ..sensors import NET_SIDES, ambient_sensor, stage_one, wrist_frames
 
 FEATURE_VERSION = 1  # bump when any per-frame array changes meaning
 ARM_JOINTS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow")
@@ -182,8 +183,13 @@ def sequence_features(library, seq, *, voxel: bool, rng: np.random.Generator) ->
         "hand_scale": np.full(T, seq.hand_scale or 1.0, np.float32),
     }
     if voxel:
-        out["voxel"] = stage_one(library, seq, wrists, "voxel").ambient.astype(np.float16)
+        out["voxel"] = voxel_feature(library, seq, wrists)
     return out
+
+
+def voxel_feature(library, seq, wrists: dict | None = None) -> np.ndarray:
+    """The voxel-ambient array ``(T, 2, 1014)`` float16 of :func:`sequence_features`."""
+    return ambient_sensor(library, seq, wrists or all_wrists(seq), "voxel").astype(np.float16)
 
 
 # --- whole splits ----------------------------------------------------------------------------
@@ -286,30 +292,75 @@ def build_split(data_dir, split: str, *, cache_dir=None, voxel: bool = False, se
                 data_hash: str | None = None, progress: bool = False) -> FrameSet:
     """Per-frame arrays of every sequence of ``split`` (cached when ``cache_dir`` is given).
 
-    The arm noise of each sequence is seeded by ``(seed, sequence name)``.
+    The arm noise of each sequence is seeded by ``(seed, sequence name)``. A voxel split is
+    the plain split (built, or read from the cache, with the same arguments) plus its voxel
+    arrays: only the voxel sensor is computed for it. Features are computed with one torch
+    thread (the small tensor operations only lose time to thread hand-offs; the arrays are
+    the same for any thread count).
     """
-    from ..data.grab_io import dataset_hash, read_grab
-    from ..data.library import ObjectLibrary
-    from ..data.perturb import sequence_rng
+    from ..data.grab_io import dataset_hash
 
     data_dir = Path(data_dir)
     path = None
     if cache_dir is not None:
-        path = _cache_path(cache_dir, data_hash or dataset_hash(data_dir), split, voxel, seed)
+        data_hash = data_hash or dataset_hash(data_dir)
+        path = _cache_path(cache_dir, data_hash, split, voxel, seed)
         if path.is_file():
             return _load(path)
+    with _one_thread():
+        if voxel:
+            base = build_split(data_dir, split, cache_dir=cache_dir, voxel=False, seed=seed,
+                               data_hash=data_hash, progress=progress)
+            fs = _add_voxel(base, data_dir, split, progress)
+        else:
+            fs = _build(data_dir, split, seed, progress)
+    if path is not None:
+        _save(path, fs)
+    return fs
+
+
+def _build(data_dir: Path, split: str, seed: int, progress: bool) -> FrameSet:
+    from ..data.grab_io import read_grab
+    from ..data.library import ObjectLibrary
+    from ..data.perturb import sequence_rng
+
     library = ObjectLibrary(data_dir)
     files = split_files(data_dir, split)
     per_seq, names, objects = [], [], []
     for f in _progress(files, f"features {split}", progress):
         seq = read_grab(f)
-        per_seq.append(sequence_features(library, seq, voxel=voxel, rng=sequence_rng(seed, seq.name)))
+        per_seq.append(sequence_features(library, seq, voxel=False, rng=sequence_rng(seed, seq.name)))
         names.append(seq.name)
         objects.append(seq.obj_name)
-    fs = _concat(per_seq, names, objects)
-    if path is not None:
-        _save(path, fs)
-    return fs
+    return _concat(per_seq, names, objects)
+
+
+def _add_voxel(base: FrameSet, data_dir: Path, split: str, progress: bool) -> FrameSet:
+    """``base`` (a plain split) with the voxel arrays of its sequences, in its frame order."""
+    from ..data.grab_io import read_grab
+    from ..data.library import ObjectLibrary
+
+    library = ObjectLibrary(data_dir)
+    files = split_files(data_dir, split)
+    voxels, names = [], []
+    for f in _progress(files, f"voxel features {split}", progress):
+        seq = read_grab(f)
+        voxels.append(voxel_feature(library, seq))
+        names.append(seq.name)
+    if [str(n) for n in names] != [str(n) for n in base.names]:
+        raise InputError(f"the {split} split changed while its features were built", data_dir)
+    arrays = {f.name: getattr(base, f.name) for f in fields(base) if f.name != "voxel"}
+    return FrameSet(**arrays, voxel=np.concatenate(voxels))
+
+
+@contextlib.contextmanager
+def _one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def _progress(items, desc: str, enabled: bool):

@@ -80,7 +80,7 @@ def denoise_arms_many(anet, noisy: list[np.ndarray], online: bool = False) -> li
         live = np.flatnonzero(lengths - 1 > t)
         fut = [np.minimum(np.arange(t + 1, t + 1 + n), t + 1 if online else lengths[i] - 1) for i in live]
         res = anet(_t(np.stack([out[i][t] for i in live])),
-                   _t(np.stack([noisy[i][f] for i, f in zip(live, fut)]))).arms[:, 1].numpy()
+                   _t(np.stack([noisy[i][f] for i, f in zip(live, fut, strict=True)]))).arms[:, 1].numpy()
         for k, i in enumerate(live):
             out[i][t + 1] = noisy[i][t + 1] + res[k]
     return out
@@ -150,12 +150,12 @@ class GripPipeline:
         wrists = [{s: wrist_frames(seq, s) for s in NET_SIDES} for seq in seqs]
         poses = [np.asarray(seq.body["body_pose"], np.float64) for seq in seqs]
         if not self.opt.use_anet:
-            return list(zip(poses, wrists))
+            return list(zip(poses, wrists, strict=True))
         if self.opt.refine:
-            poses = [arms_to_wrists(seq, w) for seq, w in zip(seqs, wrists)]
+            poses = [arms_to_wrists(seq, w) for seq, w in zip(seqs, wrists, strict=True)]
         arms = denoise_arms_many(self.nets["anet"], [arms_6d(p) for p in poses], self.opt.online)
-        new = [set_arms(p, a) for p, a in zip(poses, arms)]
-        return [(n, moved_wrists(seq, p, n, w)) for seq, p, n, w in zip(seqs, poses, new, wrists)]
+        new = [set_arms(p, a) for p, a in zip(poses, arms, strict=True)]
+        return [(n, moved_wrists(seq, p, n, w)) for seq, p, n, w in zip(seqs, poses, new, wrists, strict=True)]
 
     def cnet_poses(self, seq, library, body_pose, wrists) -> np.ndarray:
         """Stage one + CNet: both hands' poses ``(T, 2, 15, 6)``."""
@@ -217,7 +217,7 @@ class GripPipeline:
             if seq.n_frames < 1:
                 raise InputError("sequence has no frames", seq.name)
         arms = self.arms_and_wrists_many(seqs)
-        return [self._hands(seq, library, *a) for seq, a in zip(seqs, arms)]
+        return [self._hands(seq, library, *a) for seq, a in zip(seqs, arms, strict=True)]
 
     def _hands(self, seq, library, body_pose, wrists):
         if self.opt.refine:

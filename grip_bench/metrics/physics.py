@@ -12,6 +12,7 @@ resting in a bowl would start deep inside the bowl's hull and be thrown out.
 from __future__ import annotations
 
 import hashlib
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
@@ -58,8 +59,37 @@ def _hull_volume(points: np.ndarray) -> float:
 
 
 def _usable(points: np.ndarray) -> bool:
-    # MuJoCo refuses flat hulls; a piece thinner than this holds nothing anyway.
-    return _hull_volume(points) > C.SIM_MIN_PIECE_VOLUME
+    """Whether the hull of ``points`` is thicker than ``SIM_MIN_PIECE_VOLUME``.
+
+    MuJoCo refuses flat hulls; a piece thinner than this holds nothing anyway. The answer is
+    ``_hull_volume(points) > SIM_MIN_PIECE_VOLUME``; Qhull only runs when two cheap bounds
+    leave it open: the bounding box's volume (an upper bound) and the volume of a tetrahedron
+    of extreme points (a lower bound; decides every real hand piece, ~1e-6 m^3).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) < 4:
+        return False
+    limit = C.SIM_MIN_PIECE_VOLUME
+    if _tetra_volume(p) > limit * (1.0 + 1e-9):
+        return True
+    ext = p.max(0) - p.min(0)
+    if ext[0] * ext[1] * ext[2] <= limit * (1.0 - 1e-9):
+        return False
+    return _hull_volume(p) > limit
+
+
+def _tetra_volume(p: np.ndarray) -> float:
+    """Volume of a tetrahedron spanned by four of the points (N >= 4, 3): a hull lower bound."""
+    d = p - p[0]
+    d2 = np.einsum("ij,ij->i", d, d)
+    b = d[np.argmax(d2)]
+    bb = float(b @ b)
+    if bb == 0.0:
+        return 0.0
+    db = d @ b
+    c = d[np.argmax(d2 * bb - db * db)]  # farthest from the line through p[0] along b
+    n = np.array([b[1] * c[2] - b[2] * c[1], b[2] * c[0] - b[0] * c[2], b[0] * c[1] - b[1] * c[0]])
+    return float(np.abs(d @ n).max()) / 6.0
 
 
 def convex_decomposition(
@@ -69,17 +99,49 @@ def convex_decomposition(
 
     A mesh within 1% of its hull's volume is its own single piece (no CoACD run). CoACD runs
     with reduced search settings (see constants.SIM_COACD_*): about 1 s for a torus, 3-4 s for
-    a thin bowl, once per object.
+    a thin bowl, once per object and machine: the pieces are kept in memory and in the on-disk
+    geometry cache (``grip_bench.geometry.cache``), byte for byte as CoACD returned them.
     """
     key = _mesh_key(mesh, threshold)
     if key not in _PIECE_CACHE:
-        v = np.asarray(mesh.vertices, dtype=np.float64)
-        if abs(mesh.volume) >= (1.0 - C.SIM_CONVEX_TOL) * _hull_volume(v):
-            pieces = [v]
-        else:
-            pieces = _run_coacd(v, np.asarray(mesh.faces), threshold)
-        _PIECE_CACHE[key] = [p for p in pieces if _usable(p)] or [v]
+        _PIECE_CACHE[key] = _cached_pieces(mesh, threshold)
     return _PIECE_CACHE[key]
+
+
+def _decompose(mesh: trimesh.Trimesh, threshold: float) -> list[np.ndarray]:
+    """The uncached work of ``convex_decomposition``."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    if abs(mesh.volume) >= (1.0 - C.SIM_CONVEX_TOL) * _hull_volume(v):
+        pieces = [v]
+    else:
+        pieces = _run_coacd(v, np.asarray(mesh.faces), threshold)
+    return [p for p in pieces if _usable(p)] or [v]
+
+
+def _cached_pieces(mesh: trimesh.Trimesh, threshold: float) -> list[np.ndarray]:
+    """``_decompose`` through the on-disk geometry cache (``grip_bench.geometry.cache``):
+    CoACD takes seconds per object and every evaluation process needs it."""
+    from ..geometry.cache import cached_arrays, mesh_key, package_version
+
+    params = {"threshold": float(threshold), "convex_tol": C.SIM_CONVEX_TOL,
+              "min_volume": C.SIM_MIN_PIECE_VOLUME, "max_hulls": C.SIM_COACD_MAX_HULLS,
+              "resolution": C.SIM_COACD_RESOLUTION, "mcts_iterations": C.SIM_COACD_MCTS_ITERATIONS,
+              "mcts_nodes": C.SIM_COACD_MCTS_NODES, "coacd": package_version("coacd"),
+              "scipy": package_version("scipy")}
+
+    def build() -> dict[str, np.ndarray]:
+        pieces = _decompose(mesh, threshold)
+        return {"points": np.concatenate(pieces), "sizes": np.array([len(p) for p in pieces], np.int64)}
+
+    key = mesh_key("convex_pieces", mesh.vertices, mesh.faces, params)
+    def ok(a: dict) -> bool:
+        return (a["points"].ndim == 2 and a["points"].shape[1] == 3 and a["sizes"].ndim == 1
+                and len(a["sizes"]) > 0 and (a["sizes"] > 0).all()
+                and int(a["sizes"].sum()) == len(a["points"]))
+
+    a = cached_arrays("convex_pieces", key, build, names=("points", "sizes"), validate=ok)
+    points = np.asarray(a["points"], dtype=np.float64)
+    return [np.ascontiguousarray(p) for p in np.split(points, np.cumsum(a["sizes"])[:-1])]
 
 
 def _run_coacd(v: np.ndarray, f: np.ndarray, threshold: float) -> list[np.ndarray]:
@@ -113,13 +175,40 @@ def hand_convex_pieces(mesh: trimesh.Trimesh) -> list[np.ndarray]:
         return convex_decomposition(mesh)
     bone = np.asarray(bone)
     v = np.asarray(mesh.vertices, dtype=np.float64)
+    key = _hand_key(v, bone)
+    if key in _HAND_CACHE:
+        _HAND_CACHE.move_to_end(key)
+        return list(_HAND_CACHE[key])
     pieces = []
     for b in np.unique(bone):
         idx = np.flatnonzero(bone == b)
         for cluster in _clusters(v[idx]):
             if _usable(v[idx[cluster]]):
                 pieces.append(v[idx[cluster]])
-    return pieces
+    _remember(_HAND_CACHE, key, pieces)
+    return list(pieces)
+
+
+# Recently posed hands and compiled scenes by content: the evaluation simulates each tested
+# frame under two protocols (same hands, same scene), so the second run reuses both.
+_LRU_SIZE = 48
+_HAND_CACHE: OrderedDict[str, list[np.ndarray]] = OrderedDict()
+_MODEL_CACHE: OrderedDict[str, object] = OrderedDict()
+_INERTIA_CACHE: OrderedDict[str, tuple] = OrderedDict()
+
+
+def _remember(cache: OrderedDict, key: str, value) -> None:
+    cache[key] = value
+    if len(cache) > _LRU_SIZE:
+        cache.popitem(last=False)
+
+
+def _hand_key(v: np.ndarray, bone: np.ndarray) -> str:
+    h = hashlib.sha1(np.ascontiguousarray(v, dtype=np.float64).tobytes())
+    h.update(repr((v.shape, bone.dtype.str, bone.shape, C.SIM_HAND_PIECE_POINTS,
+                   C.SIM_MIN_PIECE_VOLUME)).encode())
+    h.update(np.ascontiguousarray(bone).tobytes())
+    return h.hexdigest()
 
 
 def _clusters(points: np.ndarray) -> list[np.ndarray]:
@@ -162,7 +251,16 @@ def _object_inertia(obj: trimesh.Trimesh, density: float) -> tuple[float, np.nda
     """Mass, centre of mass (3,) and full inertia [xx, yy, zz, xy, xz, yz] of the true shape.
 
     Taken from the closed mesh, not from the pieces: CoACD hulls overlap and overfill.
+    Remembered per mesh content and density (every tested frame of a sequence needs it).
     """
+    key = _mesh_key(obj, density)
+    if key not in _INERTIA_CACHE:
+        _remember(_INERTIA_CACHE, key, _mass_properties(obj, density))
+    mass, com, full = _INERTIA_CACHE[key]
+    return mass, com.copy(), full.copy()
+
+
+def _mass_properties(obj: trimesh.Trimesh, density: float) -> tuple[float, np.ndarray, np.ndarray]:
     import trimesh
 
     props = trimesh.triangles.mass_properties(obj.triangles, density=density)
@@ -248,6 +346,29 @@ def protocol_steps(protocol: Literal["paper", "hold"]) -> int:
     raise InputError(f"unknown protocol '{protocol}' (known: paper, hold)", "protocol")
 
 
+def _compiled(hand_pieces, obj, obj_pieces, obj_pose, up, density):
+    """``build_model``, reusing the model compiled for an identical scene (content key: every
+    piece, the object mesh, pose, up, density and the SIM_* constants). A model is never
+    changed by simulating it (``simulate`` works on its own ``MjData``)."""
+    h = hashlib.sha1()
+    for group in (hand_pieces, [obj.vertices, obj.faces], obj_pieces):
+        h.update(b"|group|")
+        for a in group:
+            a = np.ascontiguousarray(a)
+            h.update(repr((a.dtype.str, a.shape)).encode())
+            h.update(a.tobytes())
+    pose = None if obj_pose is None else [np.asarray(x, dtype=np.float64).tolist() for x in obj_pose]
+    sim = [(k, getattr(C, k)) for k in sorted(dir(C)) if k.startswith("SIM_") or k == "GRAVITY"]
+    h.update(repr((pose, np.asarray(up, dtype=np.float64).tolist(), float(density), sim)).encode())
+    key = h.hexdigest()
+    if key in _MODEL_CACHE:
+        _MODEL_CACHE.move_to_end(key)
+        return _MODEL_CACHE[key]
+    model = build_model(hand_pieces, obj, obj_pieces, obj_pose, up, density)
+    _remember(_MODEL_CACHE, key, model)
+    return model
+
+
 def stability(
     hand_meshes: list[trimesh.Trimesh],
     obj: trimesh.Trimesh,
@@ -266,7 +387,7 @@ def stability(
     n_steps = protocol_steps(protocol)
     hand_pieces = [p for h in hand_meshes for p in hand_convex_pieces(h)]
     pieces = convex_decomposition(obj) if obj_pieces is None else obj_pieces
-    model = build_model(hand_pieces, obj, pieces, obj_pose, up, density)
+    model = _compiled(hand_pieces, obj, pieces, obj_pose, up, density)
     disp, diverged = simulate(model, n_steps)
     return StabilityResult(disp, bool(not diverged and disp < C.SIM_STABLE_DISP), diverged)
 

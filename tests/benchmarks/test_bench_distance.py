@@ -83,9 +83,19 @@ def test_exact_per_frame(benchmark, field, frames):
     _info(benchmark, field, sub, len(sub))
 
 
-def test_grid_build(benchmark, mug):
+def test_grid_build(benchmark, mug, monkeypatch):
+    """A cold build (the on-disk geometry cache switched off)."""
+    monkeypatch.setenv("GRIP_BENCH_CACHE", "off")
     df = benchmark.pedantic(DistanceField, args=(mug,), rounds=3, iterations=1)
     benchmark.extra_info.update(grid_shape=df.shape, unreliable_cells=df.unreliable_fraction)
+
+
+def test_grid_from_cache(benchmark, mug, monkeypatch, tmp_path):
+    """The same field read back from the on-disk geometry cache (grip_bench.geometry.cache)."""
+    monkeypatch.setenv("GRIP_BENCH_CACHE", str(tmp_path))
+    DistanceField(mug)  # fills the cache
+    df = benchmark.pedantic(DistanceField, args=(mug,), rounds=3, iterations=1)
+    benchmark.extra_info.update(grid_shape=df.shape)
 
 
 def test_grid_error_within_2cm(benchmark, field, frames):

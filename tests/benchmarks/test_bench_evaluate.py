@@ -12,6 +12,7 @@ import pytest
 from grip_bench.data.grab_io import read_grab
 from grip_bench.data.library import ObjectLibrary
 from grip_bench.metrics import evaluate as E
+from grip_bench.metrics import physics
 from grip_bench.metrics.intersection import FailureCounter
 from grip_bench.metrics.physics import convex_decomposition
 from tests.eval_fixtures import grasp_dataset
@@ -57,6 +58,8 @@ def test_bench_stability_tests_per_second(benchmark, pair, protocol):
 
     def run():
         pair._sims.clear()
+        physics._HAND_CACHE.clear()  # each test pays for its pieces and its compile
+        physics._MODEL_CACHE.clear()
         return [E.simulate_frame(pair, int(t), protocol) for t in frames]
 
     res = benchmark.pedantic(run, rounds=2)

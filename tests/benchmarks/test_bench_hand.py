@@ -40,8 +40,9 @@ def test_bench_clamp_10k(benchmark, hand, poses):
     benchmark(hand.clamp, poses[1])
 
 
-def test_bench_template_build(benchmark):
+def test_bench_template_build(benchmark, monkeypatch):
     """Cold template build: SDF grid, level set, decimation, relaxation, weights."""
+    monkeypatch.setenv("GRIP_BENCH_CACHE", "off")  # not from the on-disk geometry cache
 
     def build():
         hand_mod._template_mesh.cache_clear()
@@ -49,3 +50,13 @@ def test_bench_template_build(benchmark):
         return ProceduralHand("right")
 
     benchmark.pedantic(build, rounds=2, iterations=1)
+
+
+def test_bench_forward_sequence_float64(benchmark):
+    """One evaluation sequence: 260 frames posed in float64 (what ``evaluate`` does per hand)."""
+    hand = ProceduralHand("right").double()
+    g = torch.Generator().manual_seed(1)
+    pose = hand.sample_pose(260, generator=g)
+    go, tr = torch.zeros(260, 3, dtype=torch.float64), torch.zeros(260, 3, dtype=torch.float64)
+    with torch.no_grad():
+        benchmark(hand, go, pose, tr)

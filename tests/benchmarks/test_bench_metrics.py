@@ -105,10 +105,17 @@ def fake_bone_hand() -> trimesh.Trimesh:
     return hand
 
 
+def _fresh_stability(*args):
+    """``stability`` without the content caches of hand pieces and compiled scenes."""
+    physics._HAND_CACHE.clear()
+    physics._MODEL_CACHE.clear()
+    return stability(*args)
+
+
 def test_bench_stability_paper(benchmark):
     hand, obj = fake_bone_hand(), trimesh.creation.torus(0.04, 0.012)
     pieces = convex_decomposition(obj)  # cached, as in a sequence
-    res = benchmark(stability, [hand], obj, "paper", None, C.UP, C.DEFAULT_DENSITY, pieces)
+    res = benchmark(_fresh_stability, [hand], obj, "paper", None, C.UP, C.DEFAULT_DENSITY, pieces)
     benchmark.extra_info["n_obj_pieces"] = len(pieces)
     assert not res.diverged
 
@@ -116,7 +123,8 @@ def test_bench_stability_paper(benchmark):
 def test_bench_stability_hold(benchmark):
     hand, obj = fake_bone_hand(), trimesh.creation.torus(0.04, 0.012)
     pieces = convex_decomposition(obj)
-    res = benchmark.pedantic(stability, args=([hand], obj, "hold", None, C.UP, C.DEFAULT_DENSITY, pieces), rounds=5)
+    res = benchmark.pedantic(_fresh_stability, args=([hand], obj, "hold", None, C.UP, C.DEFAULT_DENSITY, pieces),
+                             rounds=5)
     assert not res.diverged
 
 
@@ -129,9 +137,10 @@ def test_bench_stability_model_build(benchmark):
 
 
 @pytest.mark.parametrize("shape", ["torus", "bowl"])
-def test_bench_coacd_uncached(benchmark, shape):
+def test_bench_coacd_uncached(benchmark, shape, monkeypatch):
     import manifold3d as m3
 
+    monkeypatch.setenv("GRIP_BENCH_CACHE", "off")  # no on-disk geometry cache either
     if shape == "torus":
         mesh = trimesh.creation.torus(0.04, 0.012)
     else:
@@ -148,3 +157,14 @@ def test_bench_coacd_uncached(benchmark, shape):
     benchmark.extra_info["n_pieces"] = len(pieces)
     benchmark.extra_info["pieces_volume_over_mesh"] = hull_vol / mesh.volume
     print(f"\ncoacd {shape}: {len(pieces)} pieces, pieces/mesh volume {hull_vol / mesh.volume:.2f}")
+
+
+def test_bench_hand_pieces(benchmark):
+    """Per-bone k-means pieces of a posed hand (uncached), with the hull-volume checks."""
+    hand = fake_bone_hand()
+
+    def run():
+        physics._HAND_CACHE.clear()
+        return physics.hand_convex_pieces(hand)
+
+    benchmark(run)

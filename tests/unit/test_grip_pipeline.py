@@ -142,7 +142,7 @@ def test_run_many_batches_anet_across_sequences_without_changing_results(root, t
     seqs[1] = seqs[1].frames(0, 9)  # unequal lengths: shorter sequences drop out of the batch
     pipe = GripPipeline(m.nets, Options(m.variant))
     many = pipe.run_many(seqs, lib)
-    for seq, got in zip(seqs, many):
+    for seq, got in zip(seqs, many, strict=True):
         one = pipe.run(seq, lib)
         assert got.n_frames == seq.n_frames
         for part in ("rhand", "lhand"):
