@@ -15,6 +15,7 @@ Units: metres, radians, frames at ``constants.FPS``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,7 +38,7 @@ from ..sequence import (
     make_hand_params,
     make_rigid_params,
 )
-from .grasp import Grasp, GraspSynthesizer
+from .grasp import AVOID_CLEARANCE, DistanceBound, Grasp, GraspSynthesizer
 from .motion import blend, min_jerk_path, rotation_about, slerp_path
 from .objects import ObjectInstance
 from .world import USE_VERBS, Stage, Subject, draw_stage
@@ -51,8 +52,10 @@ TABLE_LIFT = 0.08  # m; clearance of a hand length below the wrist when crossing
 MAX_LEAN = 0.8  # rad; total spine flexion cap (about 45 deg)
 BODY_TABLE_GAP = 0.2  # m; the pelvis stays this far behind the table edge (thighs and hanging hands clear it)
 TABLE_SIZE = (1.2, 0.6)  # m; (width along x, depth along z) of every table
-AMPLITUDES = (1.0, 0.75, 0.5)
-TABLE_TOLERANCE = 0.001  # m; a free hand may dip this far below the table top (rounding)  # intent motion scales tried until every target is reachable
+AMPLITUDES = (1.0, 0.75, 0.5)  # intent motion scales tried until every target is reachable
+TABLE_TOLERANCE = 0.001  # m; a hand or the object may touch this deep into the table top (rounding)
+TABLE_THICKNESS = 0.03  # m; the table top is a slab this thick (as render.py draws it)
+AIR_CLEARANCE = 0.12  # m; hand room between a held object's lowest possible point and the table
 
 
 class EpisodeFailed(RuntimeError):
@@ -247,8 +250,24 @@ def handle_yaw(inst: ObjectInstance, dominant: str, rng: np.random.Generator) ->
     return float(np.arctan2(-d[2], d[0]) - np.arctan2(-u[2], u[0]))
 
 
-def make_scene(subject: Subject, inst: ObjectInstance, rng: np.random.Generator) -> Scene:
-    """Table, object rest pose and body landmarks for one episode."""
+def long_axis_xz(inst: ObjectInstance) -> tuple[float, float]:
+    """Angle (rad, as :func:`yaw` measures it) of the object's longest horizontal axis and its elongation.
+
+    Elongation: spread along that axis over spread across it (1 for round objects).
+    """
+    v = np.asarray(inst.mesh.vertices)[:, [0, 2]]
+    c = v - v.mean(0)
+    w, vecs = np.linalg.eigh(c.T @ c / len(c))
+    u = vecs[:, 1]
+    return float(np.arctan2(-u[1], u[0])), float(np.sqrt(w[1] / max(w[0], 1e-12)))
+
+
+def make_scene(subject: Subject, inst: ObjectInstance, rng: np.random.Generator, intent: str = "lift") -> Scene:
+    """Table, object rest pose and body landmarks for one episode.
+
+    For an off-hand pass an elongated object lies across the subject (its long axis
+    left-right, within 15 deg), so each hand can take one end.
+    """
     radius = float(np.linalg.norm(inst.mesh.extents[[0, 2]]) / 2)
     stage = draw_stage(rng, subject, radius, inst.large)
     h, H = stage.table_height, subject.height
@@ -256,6 +275,10 @@ def make_scene(subject: Subject, inst: ObjectInstance, rng: np.random.Generator)
     table_p = np.array([0.0, h, stage.table_front + TABLE_SIZE[1] / 2])
     obj_yaw = handle_yaw(inst, subject.dominant, rng)
     obj_yaw = stage.object_yaw if obj_yaw is None else obj_yaw
+    if intent == "offhand" and not (inst.handles and inst.grasp_hint == "handle"):
+        angle, elongation = long_axis_xz(inst)
+        if elongation > 1.6:
+            obj_yaw = -angle + float(rng.uniform(-np.radians(15), np.radians(15)))
     obj_p = np.array([stage.object_xz[0], h + inst.rest_height, stage.object_xz[1]])
     pelvis = np.array([0.0, _pelvis_height(H), 0.0])
     return Scene(stage, yaw(table_yaw), table_p, yaw(obj_yaw), obj_p, pelvis,
@@ -264,8 +287,9 @@ def make_scene(subject: Subject, inst: ObjectInstance, rng: np.random.Generator)
                  chest=np.array([0.0, 0.70 * H, 0.17 * H]))
 
 
+@functools.lru_cache(maxsize=64)
 def _pelvis_height(height: float) -> float:
-    return ProceduralBody(height).standing_pelvis_height
+    return float(ProceduralBody(height).standing_pelvis_height)
 
 
 # --- grasps ------------------------------------------------------------------------------
@@ -289,11 +313,11 @@ def approach_dirs(side: str, large: bool, azimuths=(0, 30, 60), elevations=(0, 3
 def search_grasp(synth: GraspSynthesizer, side: str, obj_R: np.ndarray, dirs_world: np.ndarray,
                  rng: np.random.Generator, kind: str | None = None, target=None,
                  above_table: bool = True, steep: bool | None = None,
-                 avoid: np.ndarray | None = None) -> Grasp | None:
+                 avoid: np.ndarray | None = None, up: float = 1.0) -> Grasp | None:
     """A grasp for ``side`` from world approach directions, with the object at rotation ``obj_R``."""
     finger_ref = obj_R.T @ np.array([0.0, 0.0, 1.0])
     return synth.search(side, dirs_world @ obj_R, finger_ref, rng, kind=kind, target=target,
-                        above_table=above_table, steep=steep, avoid=avoid)
+                        above_table=above_table, steep=steep, avoid=avoid, up=up)
 
 
 def hands_clear(hand_models: dict, g1: Grasp, g2: Grasp, min_gap: float = HAND_CLEARANCE) -> bool:
@@ -313,6 +337,22 @@ def _hand_vertices(hand: ProceduralHand, R: np.ndarray, p: np.ndarray, pose: np.
 
 
 # --- choreography --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Handover:
+    """How an off-hand pass hands the object over (world rotations of the object).
+
+    ``split``: each hand holds its own part of the object (its two ends, top and body,
+    body and handle); the object keeps its rest rotation. ``flip``: the off hand takes a
+    symmetric object from above and turns it over (forearm supination), so it lies in
+    the upturned palm; the dominant hand takes it from above and puts it down as it is,
+    upside down, which for a symmetric object is the same shape on the table.
+    """
+
+    mode: str  # "split" | "flip"
+    half_R: np.ndarray  # (3, 3) halfway to the middle (half the turn)
+    mid_R: np.ndarray  # (3, 3) at the handover, and when put back
+
+
 @dataclass
 class Cast:
     """What one episode is about: who, what, which intent, which grasps (object frame)."""
@@ -327,10 +367,17 @@ class Cast:
     rng_seed: int  # motion details (hold rotations, pass direction) come from this
     lift_extra: float = 0.0  # m, added height when a free hand crosses the table edge
     lean_gain: float = 1.0  # multiplies the torso lean (raised when a low target is out of reach)
+    handover: Handover | None = None  # how an off-hand pass hands the object over
+    backoff_off: float = BACKOFF_DIST  # m, how far the off hand backs off after a flip's handover
 
     @property
     def bimanual(self) -> bool:
         return self.inst.large
+
+    @property
+    def end_R(self) -> np.ndarray:
+        """Object rotation (3, 3) once put back (a flipping off-hand pass puts it down upside down)."""
+        return self.scene.obj_R if self.handover is None else self.handover.mid_R
 
 
 def rest_frames(subject: Subject, pelvis: np.ndarray) -> dict:
@@ -354,13 +401,17 @@ def _over_table(cast: Cast, a: np.ndarray, b: np.ndarray):
     if min(a[2], b[2]) >= edge or max(a[2], b[2]) <= front:
         return None
     # Reaching: lift where the fingertips reach the edge. Withdrawing: lift at once, since
-    # the hand starts over the table and turns its fingers down on the way.
-    at = float(np.clip((front - a[2]) / (b[2] - a[2]), 0.2, 0.7)) if b[2] > a[2] else 0.3
-    straight = (1 - at) * a + at * b
+    # the hand starts over the table and turns its fingers down on the way -- or where the
+    # wrist passes the edge, when it starts high and would come down before it.
+    # (withdrawing, the fingers may still point forward: the wrist a hand length further back)
+    line = front if b[2] > a[2] else front - 0.19 * cast.subject.hand_scale
+    cross = float(np.clip((line - a[2]) / (b[2] - a[2]), 0.2, 0.7))
     need = cast.scene.table_height + TABLE_LIFT + 0.19 * cast.subject.hand_scale + cast.lift_extra
-    if straight[1] >= need:
+    deficit = {at: need - ((1 - at) * a + at * b)[1] for at in ((cross,) if b[2] > a[2] else (0.3, cross))}
+    at = max(deficit, key=deficit.get)
+    if deficit[at] <= 0:
         return None
-    return straight + np.array([0.0, need - straight[1], 0.0]), at
+    return (1 - at) * a + at * b + np.array([0.0, deficit[at], 0.0]), at
 
 
 def reach_and_grasp(sc: Script, cast: Cast, sides, obj_R, obj_p, on_table: bool) -> None:
@@ -384,7 +435,7 @@ def reach_and_grasp(sc: Script, cast: Cast, sides, obj_R, obj_p, on_table: bool)
 def release_and_retreat(sc: Script, cast: Cast, sides, on_table: bool = True) -> None:
     """Open the fingers, back the wrist off along the approach, return to rest."""
     obj_R, obj_p = sc.obj_pose
-    a, b = sc.phase("release", 0.25)
+    a, b = sc.phase("release", 0.17)  # a quick let-go: few frames of a half-open hand on the object
     for s in sides:
         sc.shape(s, a, b, cast.grasps[s].open_pose)
     a, b = sc.phase("backoff", 0.45)
@@ -393,7 +444,7 @@ def release_and_retreat(sc: Script, cast: Cast, sides, on_table: bool = True) ->
         Rw, pw = wrist_of(obj_R, obj_p, g)
         sc.move(s, a, b, pw + BACKOFF_DIST * (obj_R @ g.approach) + np.array([0.0, 0.03, 0.0]), Rw,
                 ease="leave")
-        sc.shape(s, a, b, sc.relaxed[s])
+        sc.shape(s, (a + b) // 2, b, sc.relaxed[s])  # relax once clear of the object and table
     a, b = sc.phase("retreat", 1.0)
     for s in sides:
         via = _over_table(cast, sc.wrist[s].last[0], sc.rest[s][0]) if on_table else None
@@ -570,7 +621,7 @@ def act_pour(sc, cast, rng, amp) -> None:
 def act_inspect(sc, cast, rng, amp) -> None:
     """Lift to the chest and turn the object to look at it."""
     R0, p0 = sc.obj_rest
-    target = p0 + amp * (cast.scene.chest + np.array([0.0, 0.0, 0.12]) - p0)
+    target = in_air(cast, p0 + amp * (cast.scene.chest + np.array([0.0, 0.0, 0.12]) - p0))
     _carry(sc, "lift", 1.0, target)
     for k in range(2):
         _carry(sc, f"turn{k}", 0.7, target, _wobble(rng, R0, 40 * amp))
@@ -598,35 +649,67 @@ def _act(sc, cast, rng, amp) -> None:
 
 
 def _offhand(sc: Script, cast: Cast, rng, amp, mid_p) -> None:
-    """Off-hand grasps, brings the object to the middle, the dominant hand takes it and puts it back."""
+    """Off hand grasps, brings the object to the middle (turning it over for a flip), both
+    hands hold it, the off hand lets go and the dominant hand puts it back."""
     N, D = cast.sides
+    ho = cast.handover
     R0, p0 = sc.obj_rest
     reach_and_grasp(sc, cast, [N], R0, p0, True)
     attach(sc, N, carrier=True)
-    _carry(sc, "lift", 0.7, p0 + np.array([0.0, 0.10, -0.03]))
-    _carry(sc, "to_middle", 0.9, mid_p, R0)
-    reach_and_grasp(sc, cast, [D], R0, mid_p, False)
+    up = p0 + np.array([0.0, 0.10, -0.03])
+    _carry(sc, "lift", 0.7, up)
+    if ho.mode == "flip":  # forearm supination while the object travels to the middle
+        _carry(sc, "to_middle", 0.7, 0.5 * (up + mid_p) + np.array([0.0, 0.03, 0.0]), ho.half_R)
+        _carry(sc, "turn", 0.6, mid_p, ho.mid_R)
+    else:
+        _carry(sc, "to_middle", 0.9, mid_p, ho.mid_R)
+    reach_and_grasp(sc, cast, [D], ho.mid_R, mid_p, True)
     attach(sc, D, carrier=False)
     _hold(sc, "both", 0.4)
     set_carrier(sc, D)
     detach(sc, cast, N)
-    a, b = sc.phase("release_off", 0.25)
-    sc.shape(N, a, b, cast.grasps[N].open_pose)
-    a, b = sc.phase("backoff_off", 0.45)
-    Rw, pw = wrist_of(R0, mid_p, cast.grasps[N])
-    sc.move(N, a, b, pw + BACKOFF_DIST * (R0 @ cast.grasps[N].approach), Rw, ease="leave")
-    sc.shape(N, a, b, sc.relaxed[N])
-    a, b = sc.phase("place", 1.2)
-    sc.move(N, a, b, *sc.rest[N], _over_table(cast, sc.wrist[N].last[0], sc.rest[N][0]))
-    sc.carry(a, b, p0 + np.array([0.0, 0.03, 0.0]), R0)
-    _carry(sc, "settle", 0.4, p0, R0)
+    gN = cast.grasps[N]
+    a, b = sc.phase("release_off", 0.17)
+    sc.shape(N, a, b, gN.open_pose)
+    a, b = sc.phase("backoff_off", 0.4)
+    Rw, pw = wrist_of(ho.mid_R, mid_p, gN)
+    # Straight out along the approach until the open hand is clear of the object (a hand
+    # under a turned-over object only that far: further down is the table).
+    dist = cast.backoff_off if ho.mode == "flip" else BACKOFF_DIST
+    sc.move(N, a, b, pw + dist * (ho.mid_R @ gN.approach), Rw, ease="leave")
+    # The off hand withdraws towards the body at its height, behind the table edge, while
+    # the dominant hand holds the object still (it is about to go down there), then drops
+    # to rest as the object is put back.
+    p, R = sc.wrist[N].last
+    back = np.array([p[0], p[1], min(p[2], cast.scene.stage.table_front - 0.19 * cast.subject.hand_scale - 0.05)])
+    a, b = sc.phase("withdraw_off", 0.45)
+    sc.move(N, a, b, back, R, ease="arrive")  # level: lifting it would meet the object
+    sc.carry(a, b, *sc.obj.last)
+    a, b = sc.phase("place", 1.1)
+    sc.move(N, a, b, *sc.rest[N], _over_table(cast, back, sc.rest[N][0]), ease="leave")
+    sc.shape(N, a, (a + b) // 2, sc.relaxed[N])  # fingers relax once clear of the object
+    sc.carry(a, b, p0 + np.array([0.0, 0.03, 0.0]), ho.mid_R)
+    _carry(sc, "settle", 0.4, p0, ho.mid_R)
     detach(sc, cast, D)
     release_and_retreat(sc, cast, [D])
 
 
-def middle_point(scene: Scene) -> np.ndarray:
-    """Where an off-hand pass meets: in front of the chest, midline (world, m)."""
-    return scene.chest + np.array([0.0, -0.04, 0.16])
+def in_air(cast: Cast, p: np.ndarray, margin: float = AIR_CLEARANCE) -> np.ndarray:
+    """``p`` (world, m) raised where needed so that the object held there, however turned,
+    keeps ``margin`` (times the hand scale) between its lowest possible point and the table
+    top: a point before the chest may lie over a high table."""
+    sc = cast.scene
+    into = ((p - sc.table_p) @ sc.table_R)[2] + TABLE_SIZE[1] / 2  # m in from the front edge
+    if into < -0.2:
+        return p
+    radius = float(np.linalg.norm(cast.inst.mesh.extents)) / 2
+    floor = sc.table_height + radius + margin * cast.subject.hand_scale
+    return np.array([p[0], max(p[1], floor), p[2]])
+
+
+def middle_point(cast: Cast) -> np.ndarray:
+    """Where an off-hand pass meets: in front of the chest, midline, above the table (world, m)."""
+    return in_air(cast, cast.scene.chest + np.array([0.0, -0.04, 0.16]))
 
 
 def choreograph(cast: Cast, amp: float, relaxed: dict) -> Script:
@@ -636,7 +719,7 @@ def choreograph(cast: Cast, amp: float, relaxed: dict) -> Script:
     rng = np.random.default_rng(cast.rng_seed)
     sc.phase("rest", float(rng.uniform(0.5, 0.8)))
     if cast.intent == "offhand":
-        _offhand(sc, cast, rng, amp, middle_point(scene))
+        _offhand(sc, cast, rng, amp, middle_point(cast))
     else:
         reach_and_grasp(sc, cast, cast.sides, scene.obj_R, scene.obj_p, True)
         for i, s in enumerate(cast.sides):
@@ -808,7 +891,11 @@ def solve(body: ProceduralBody, sc: Script, cast: Cast) -> Motion:
     T, scene = sc.t + 1, cast.scene
     obj_p, obj_R = sc.obj.sample(T)
     carrier, attached = _masks(sc, T)
-    obj_R[carrier < 0], obj_p[carrier < 0] = scene.obj_R, scene.obj_p  # resting means exactly at rest
+    # resting means exactly at rest: the start pose before the first carry, the put-back pose after
+    free, held = carrier < 0, np.flatnonzero(carrier >= 0)
+    before = free & (np.arange(T) < (held[0] if len(held) else T))
+    obj_R[before], obj_p[before] = scene.obj_R, scene.obj_p
+    obj_R[free & ~before], obj_p[free & ~before] = cast.end_R, scene.obj_p
     fingers = {s: sc.fingers[s].sample(T) for s in SIDES}
     targets = {}
     for s in SIDES:
@@ -862,15 +949,54 @@ class ObjectTools:
     def __init__(self, inst: ObjectInstance):
         self.inst = inst
         self.df = DistanceField(inst.mesh)
+        self.bound = DistanceBound(self.df, inst.mesh)
         self.contact_mesh = contact_mesh(inst)
         self._synth: dict[float, GraspSynthesizer] = {}
+        self._symmetric: dict[tuple, bool] = {}
+        self._upside_down: bool | None = None
+
+    def symmetric(self, R: np.ndarray, tol: float = 0.001) -> bool:
+        """Whether the rotation ``R`` (3, 3) about the bounding-box centre maps the object onto itself."""
+        key = tuple(np.round(R, 6).ravel())
+        if key not in self._symmetric:
+            c = np.asarray(self.inst.mesh.bounding_box.centroid, float)
+            v = np.asarray(self.inst.mesh.vertices, float)
+            moved = (v - c) @ R.T + c
+            d = self.df.signed_distance(moved, far="bound")
+            back = self.df.signed_distance((v - c) @ R + c, far="bound")
+            self._symmetric[key] = bool(max(np.abs(d).max(), np.abs(back).max()) < tol)
+        return self._symmetric[key]
+
+    def stands_upside_down(self, margin: float = 0.005) -> bool:
+        """Whether the object, turned over, stands stably on its top: the points of its top
+        (within 2 mm of it) surround the centre of mass with ``margin`` to spare, and with a
+        quarter of the centre's height above the top (so a bottle does not stand on its cap)."""
+        if self._upside_down is None:
+            from scipy.spatial import ConvexHull, QhullError
+
+            m = self.inst.mesh
+            v = np.asarray(m.vertices)
+            rim = v[v[:, 1] > m.bounds[1, 1] - 0.002][:, [0, 2]]
+            com = np.asarray(m.center_mass)
+            # a tall object on a small top (a bottle on its cap) tips over at a nudge
+            margin = max(margin, 0.25 * (m.bounds[1, 1] - com[1]))
+            ok = False
+            if len(rim) >= 3:
+                try:
+                    hull = ConvexHull(rim)
+                    # hull.equations: n . x + d <= 0 inside; distance inside = -(n . x + d)
+                    ok = bool((-(hull.equations[:, :2] @ com[[0, 2]] + hull.equations[:, 2])).min() > margin)
+                except QhullError:
+                    ok = False
+            self._upside_down = ok
+        return self._upside_down
 
     def synth(self, hand_scale: float) -> GraspSynthesizer:
         if hand_scale not in self._synth:
             i = self.inst
             self._synth[hand_scale] = GraspSynthesizer(
                 i.mesh, self.df, hand_scale, rest_height=i.rest_height, grasp_hint=i.grasp_hint,
-                handles=i.handles, large=i.large)
+                handles=i.handles, large=i.large, bound=self.bound)
         return self._synth[hand_scale]
 
 
@@ -899,59 +1025,133 @@ class HandContact:
     grasp: np.ndarray  # (T,) bool: within CONTACT_THRESHOLD of the surface
     penetration: np.ndarray  # (T,) m, deepest hand vertex inside (0 when outside)
     parts: np.ndarray  # (T, 6) bool: each HAND_PARTS part within the threshold
-    table_gap: float  # m, lowest hand point above the table top where it is over the table
+    table_gap: float  # m, least clearance from the table top, negative inside it (table_clearance)
 
 
 def _posed_hands(hands: dict, mo: Motion) -> dict:
     return {s: _hand_vertices(hands[s], mo.wrist[s][0], mo.wrist[s][1], mo.fingers[s]) for s in SIDES}
 
 
-def _table_gap(v: np.ndarray, scene: Scene) -> float:
-    """Lowest height (m) above the table top of hand vertices (T, V, 3) lying over the table."""
+def table_clearance(v: np.ndarray, scene: Scene) -> np.ndarray:
+    """Per-frame clearance (T,) in m between points (T, V, 3) and the table top, a slab
+    ``TABLE_THICKNESS`` thick under the stored top surface.
+
+    A point over the table counts with its height above the top; a point inside the slab
+    counts negatively by its depth (distance to the nearest slab face); a point that went
+    from above the top to below the slab (or back) since the previous frame passed through
+    it and counts as half the slab deep. Points under the slab or beside the table do not
+    count (inf where nothing does): they are not in the table.
+    """
     local = (v - scene.table_p) @ scene.table_R
-    over = (np.abs(local[..., 0]) <= TABLE_SIZE[0] / 2) & (np.abs(local[..., 2]) <= TABLE_SIZE[1] / 2)
-    return float(local[..., 1][over].min()) if over.any() else np.inf
+    y = local[..., 1]
+    inset = np.minimum(TABLE_SIZE[0] / 2 - np.abs(local[..., 0]), TABLE_SIZE[1] / 2 - np.abs(local[..., 2]))
+    over = inset >= 0
+    above = over & (y >= 0)
+    inside = over & (y < 0) & (y > -TABLE_THICKNESS)
+    depth = np.minimum(np.minimum(-y, y + TABLE_THICKNESS), inset)
+    gap = np.where(above, y, np.where(inside, -depth, np.inf)).min(-1)
+    if len(v) > 1:
+        below = over & (y <= -TABLE_THICKNESS)
+        crossed = ((above[1:] & below[:-1]) | (below[1:] & above[:-1])).any(-1)
+        gap[1:] = np.where(crossed, np.minimum(gap[1:], -TABLE_THICKNESS / 2), gap[1:])
+    return gap
 
 
-def hand_contact(v: np.ndarray, hand: ProceduralHand, mo: Motion, tools: ObjectTools, scene: Scene):
-    """Per-frame grasp flags, penetration and part contacts of one hand; also its vertices in the object frame."""
+def _min(x: np.ndarray) -> float:
+    return float(x.min()) if x.size else np.inf
+
+
+def object_clearance(mo: Motion, inst: ObjectInstance, scene: Scene) -> np.ndarray:
+    """Per-frame clearance (T,) in m of the object from the table top (see :func:`table_clearance`)."""
+    v = np.asarray(inst.mesh.convex_hull.vertices if len(inst.mesh.vertices) > 200 else inst.mesh.vertices)
+    world = np.einsum("tij,nj->tni", mo.obj_R, v) + mo.obj_p[:, None]
+    return table_clearance(world, scene)
+
+
+def repeats(v: np.ndarray, tol: float = 1e-7) -> np.ndarray:
+    """For points (T, V, 3) per frame, the first frame (T,) of each run of frames whose points
+    all stay within ``tol`` (m) of that frame's: a held hand does not move against the object
+    it holds, so its distances need computing once per run."""
+    rep = np.arange(len(v))
+    for t in range(1, len(v)):
+        r = rep[t - 1]
+        if np.abs(v[t] - v[r]).max() < tol:
+            rep[t] = r
+    return rep
+
+
+def hand_contact(v: np.ndarray, hand: ProceduralHand, mo: Motion, tools: ObjectTools, scene: Scene,
+                 gap: np.ndarray | None = None):
+    """Per-frame grasp flags, penetration and part contacts of one hand.
+
+    Also returns its vertices in the object frame (T, V, 3), their :func:`repeats` (T,) and,
+    per computed frame, the ids of the vertices within 1 mm of the contact band (the only
+    ones that can label the object). ``gap``: its :func:`table_clearance` if known.
+    """
     T = len(v)
     grasp, pen, parts = np.zeros(T, bool), np.zeros(T), np.zeros((T, len(HAND_PARTS)), bool)
     v_obj = np.einsum("tvj,tjk->tvk", v - mo.obj_p[:, None], mo.obj_R)  # R^T (v - p), rows
+    rep = repeats(v_obj)
     radius = float(np.linalg.norm(tools.inst.mesh.extents)) / 2
     near = np.linalg.norm(v_obj[:, 0], axis=1) < radius + 0.3 * hand.scale
+    close = {}
     if near.any():
-        sd = tools.df.signed_distance(v_obj[near].reshape(-1, 3)).reshape(near.sum(), -1)
-        grasp[near] = sd.min(1) <= C.CONTACT_THRESHOLD
-        pen[near] = np.maximum(-sd.min(1), 0.0)
+        keys, inv = np.unique(rep[near], return_inverse=True)
+        # Beyond the grid's padding (3 cm) the box distance is a lower bound: all that
+        # matters here is contact (4.5 mm) and penetration, so no exact queries are needed.
+        # (points the bound puts beyond 5.5 mm keep the bound: no test below needs more)
+        sd = tools.bound.signed_distance(tools.df, v_obj[keys].reshape(-1, 3),
+                                         C.CONTACT_THRESHOLD + 0.001).reshape(len(keys), -1)
+        grasp[near] = (sd.min(1) <= C.CONTACT_THRESHOLD)[inv]
+        pen[near] = np.maximum(-sd.min(1), 0.0)[inv]
         labels = hand.part_labels
         parts[near] = np.stack([sd[:, labels == k].min(1) <= C.CONTACT_THRESHOLD
-                                for k in range(len(HAND_PARTS))], 1)
-    return HandContact(grasp, pen, parts, _table_gap(v, scene)), v_obj
+                                for k in range(len(HAND_PARTS))], 1)[inv]
+        close = {int(k): np.flatnonzero(row <= C.CONTACT_THRESHOLD + 0.001) for k, row in zip(keys, sd, strict=True)}
+    gap = table_clearance(v, scene) if gap is None else gap
+    return HandContact(grasp, pen, parts, _min(gap)), v_obj, rep, close
 
 
-def contact_labels(v_obj: dict, contacts: dict, hands: dict, verts: np.ndarray) -> np.ndarray:
+def contact_labels(v_obj: dict, contacts: dict, hands: dict, verts: np.ndarray, reps: dict | None = None,
+                   close: dict | None = None) -> np.ndarray:
     """GRAB contact labels (T, N) uint8 for the object vertices ``verts`` (N, 3) (object frame).
 
     A vertex within CONTACT_THRESHOLD of a hand vertex takes the GRAB id (SMPL-X joint
-    index + 1) of that hand vertex's bone; the nearer hand wins. Only grasp frames are searched.
+    index + 1) of that hand vertex's bone; the nearer hand wins. Only grasp frames are searched;
+    frames where neither hand moved against the object (``reps``: side -> :func:`repeats`)
+    copy the labels of the first such frame. ``close`` (side -> {frame: hand vertex ids},
+    from :func:`hand_contact`) restricts the search to the hand vertices near the surface.
     """
     T = len(next(iter(v_obj.values())))
     labels = np.zeros((T, len(verts)), np.uint8)
-    best = np.full((T, len(verts)), np.inf)
+    reps = reps or {s: np.arange(T) for s in SIDES}
     thr = C.CONTACT_THRESHOLD
-    for s in SIDES:
-        lut = np.array([contact_label(f"{s}_{name}") for name in MANO_JOINTS], np.uint8)[hands[s].bone_ids]
-        for t in np.flatnonzero(contacts[s].grasp):
-            hv = v_obj[s][t]
+    luts = {s: np.array([contact_label(f"{s}_{name}") for name in MANO_JOINTS], np.uint8)[hands[s].bone_ids]
+            for s in SIDES}
+    done: dict = {}
+    for t in np.flatnonzero(contacts["right"].grasp | contacts["left"].grasp):
+        key = tuple((int(reps[s][t]), bool(contacts[s].grasp[t])) for s in SIDES)
+        if key in done:
+            labels[t] = labels[done[key]]
+            continue
+        done[key] = t
+        best = np.full(len(verts), np.inf)
+        for s in SIDES:
+            if not contacts[s].grasp[t]:
+                continue
+            ids = close[s].get(int(reps[s][t])) if close else None
+            ids = np.arange(v_obj[s].shape[1]) if ids is None else ids
+            if not len(ids):
+                continue
+            hv = v_obj[s][t][ids]
             lo, hi = hv.min(0) - thr, hv.max(0) + thr
             cand = np.flatnonzero(((verts >= lo) & (verts <= hi)).all(1))
             if not len(cand):
                 continue
             d, idx = cKDTree(hv).query(verts[cand], distance_upper_bound=thr)
-            hit = np.isfinite(d) & (d < best[t, cand])
-            labels[t, cand[hit]] = lut[idx[hit]]
-            best[t, cand[hit]] = d[hit]
+            hit = np.isfinite(d) & (d < best[cand])
+            labels[t, cand[hit]] = luts[s][ids[idx[hit]]]
+            best[cand[hit]] = d[hit]
     return labels
 
 
@@ -963,28 +1163,180 @@ def shifted(scene: Scene, pelvis: np.ndarray) -> Scene:
                  scene.mouth + d, scene.eyes + d, scene.chest + d)
 
 
-def _clear_of_table(hand: ProceduralHand, g: Grasp, table_y: float) -> bool:
-    """Whether a closed grasp (object frame) keeps the hand above the table the object rests on."""
-    v = _hand_vertices(hand, g.R[None], g.t[None], g.hand_pose[None])[0]
-    return bool(v[:, 1].min() > table_y + 0.004)
+def _part_target(synth: GraspSynthesizer, point: np.ndarray, kind: str, up: float = 1.0) -> np.ndarray:
+    """The search target of one hand's part of the object (object frame): a power grasp
+    aims its palm at ``point``; a pinch takes the part's upper edge (its lower edge when
+    the object will be put down upside down), as the synthesizer's own targets do."""
+    if kind not in ("precision", "tripod"):
+        return point
+    return np.array([point[0], synth.pinch_height(point[1], up), point[2]])
 
 
-def _second_grasp(synth, hands, first: Grasp, side: str, obj_R, rng) -> Grasp | None:
-    """The dominant hand's grasp of an object the other hand holds up: from its own side.
-
-    Searched for an object in the air (no steep table-top approaches), then checked to
-    keep clear of the other hand and of the table when the object is put back.
-    """
-    tries = (((30, 60, 90), (0, 25)), ((0, 45, 90, 135), (-30, 0, 30, 60)))
-    kind = "handle" if synth.hint == "handle" and synth.handles else None
-    other = _hand_vertices(hands[first.side], first.R[None], first.t[None], first.hand_pose[None])[0]
-    for az, el in tries:
-        # above_table: the dominant hand later puts the object back; no steep approaches:
-        # the object is in the air, and both hands coming from the top would collide.
-        g = search_grasp(synth, side, obj_R, approach_dirs(side, False, az, el), rng, kind=kind,
-                         above_table=True, steep=False, avoid=other)
-        if g is not None and hands_clear(hands, first, g):
+def _search_part(synth, side, obj_R, dirs, rng, point, kinds, **kw) -> Grasp | None:
+    """The first grasp found for ``side`` over ``kinds``, each aimed at ``point`` (object frame)."""
+    for kind in kinds:
+        target = None if kind == "handle" else _part_target(synth, point, kind, kw.get("up", 1.0))
+        g = search_grasp(synth, side, obj_R, dirs, rng, kind=kind, target=target, **kw)
+        if g is not None:
             return g
+    return None
+
+
+def _kinds_for(synth: GraspSynthesizer, handle: bool = False) -> list[str]:
+    kinds = [k for k in synth._kinds() if k != "handle"]
+    return (["handle"] if handle else []) + kinds
+
+
+def flip_axis(tools: ObjectTools, obj_R: np.ndarray) -> np.ndarray | None:
+    """A horizontal object-frame axis (3,) for the off hand to turn the object over about.
+
+    Symmetric objects take an axis about which a half turn maps them onto themselves
+    (they look the same when put back): round objects (symmetric about their vertical
+    axis) the world's forward axis, the forearm's axis when the off hand turns over in
+    front of the chest; others their own x or z axis, whichever is closer to it. Other
+    objects that stand stably upside down take the object axis closest to forward.
+    None when the object can be turned over neither way.
+    """
+    fwd = obj_R.T @ np.array([0.0, 0.0, 1.0])
+    fwd = fwd - fwd[1] * np.array([0.0, 1.0, 0.0])
+    fwd /= np.linalg.norm(fwd)
+    if tools.symmetric(_turn(np.array([0.0, 1.0, 0.0]), 0.9)) and tools.symmetric(_turn(fwd, np.pi)):
+        return fwd
+    axes = sorted((np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])), key=lambda e: -abs(e @ fwd))
+    for e in axes:
+        if tools.symmetric(_turn(e, np.pi)):
+            return e
+    return axes[0] if tools.stands_upside_down() else None
+
+
+def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
+    return rotation_about(axis, angle)
+
+
+def _other_hand(hands: dict, g: Grasp) -> np.ndarray:
+    return _hand_vertices(hands[g.side], g.R[None], g.t[None], g.hand_pose[None])[0]
+
+
+def _handover_grasps(tools, subject, R0, mid_R, n_plan, d_plan, rng, up: float):
+    """The off hand's grasp of the object at rest and the dominant hand's of the object at
+    ``mid_R``, clear of each other, or None. Plans: (world dirs, object-frame point, kinds).
+
+    The off hand tries each of its kinds in turn (a pinch leaves the most room), the
+    dominant hand all of its own against each.
+    """
+    N, D = subject.off_hand, subject.dominant
+    synth, hands = tools.synth(subject.hand_scale), hand_models(subject.hand_scale)
+    (n_dirs, n_point, n_kinds), (d_dirs, d_point, d_kinds) = n_plan, d_plan
+    for kind in n_kinds:
+        g_n = _search_part(synth, N, R0, n_dirs, rng, n_point, [kind])
+        if g_n is None:
+            continue
+        g_d = _search_part(synth, D, mid_R, d_dirs, rng, d_point, d_kinds, steep=False,
+                           avoid=_other_hand(hands, g_n), up=up)
+        if g_d is not None and hands_clear(hands, g_n, g_d, AVOID_CLEARANCE - 1e-4):
+            return {N: g_n, D: g_d}
+    return None
+
+
+def _flip_grasps(tools, subject, scene, rng):
+    """Grasps and handover of a flipping off-hand pass (see :class:`Handover`), or None."""
+    N, D = subject.off_hand, subject.dominant
+    synth = tools.synth(subject.hand_scale)
+    e = flip_axis(tools, scene.obj_R)
+    if e is None:
+        return None
+    R0 = scene.obj_R
+    a_w = R0 @ e
+    # supination turns the off hand's thumb up and out: about -z for the left forearm, +z for the right
+    sgn = -SIGN[N] * (1.0 if a_w[2] >= 0 else -1.0)
+    half_R, mid_R = _turn(a_w, sgn * np.pi / 2) @ R0, R0 @ _turn(e, np.pi)
+    kinds = _kinds_for(synth)
+    n_kinds = sorted(kinds, key=lambda k: k not in ("precision", "tripod"))
+    # the off hand from above; the dominant hand from above at the handover, which is
+    # from the object's own bottom: it puts the object down upside down
+    found = _handover_grasps(tools, subject, R0, mid_R,
+                             (approach_dirs(N, False, (0, 30, 60), (55, 75, 88)), synth.centre, n_kinds),
+                             (approach_dirs(D, False, (0, 30, 60, 90), (50, 70, 88)), synth.centre, kinds),
+                             rng, up=-1.0)
+    return None if found is None else (found, Handover("flip", half_R, mid_R))
+
+
+def _split_grasps(tools, subject, scene, rng, layout: str):
+    """Grasps and handover of an off-hand pass where each hand holds its own part, or None.
+
+    layout: ``handle``: the dominant hand takes the handle (``handle_yaw`` turned it to its
+    side), the off hand the body; ``tall``: the off hand takes the top, the dominant hand
+    the body lower down; ``halves``: each hand its own half along the left-right axis.
+    """
+    N, D = subject.off_hand, subject.dominant
+    inst, synth = tools.inst, tools.synth(subject.hand_scale)
+    R0, c, ext = scene.obj_R, synth.centre, inst.mesh.extents
+    kinds = _kinds_for(synth)
+    if layout == "handle":
+        h = np.asarray(inst.handles[0].point, float) - c
+        h[1] = 0.0
+        u = h / max(np.linalg.norm(h), 1e-9)  # towards the handle
+        n_point, d_point = c - 0.25 * float(np.abs(u) @ ext) * u, c
+        n_dirs = approach_dirs(N, False, (30, 60, 90), (30, 60, 85))
+        d_dirs = approach_dirs(D, False, (30, 60, 90), (0, 30, 60, 85))
+        d_kinds = ["handle"] + kinds
+    elif layout == "tall":
+        n_point = c + np.array([0.0, 0.3 * ext[1], 0.0])
+        d_point = c - np.array([0.0, 0.2 * ext[1], 0.0])
+        n_dirs = approach_dirs(N, False, (0, 45, 90), (55, 75, 88))
+        d_dirs = approach_dirs(D, False, (30, 60, 90), (0, 20, 40))
+        d_kinds = kinds
+    else:  # two halves, off-hand side and dominant side
+        u = R0.T @ np.array([SIGN[N], 0.0, 0.0])
+        q = 0.25 * float(np.abs(u) @ ext)
+        n_point, d_point = c + q * u, c - q * u
+        n_dirs = approach_dirs(N, False, (45, 90), (45, 70, 88))
+        d_dirs = approach_dirs(D, False, (45, 90), (30, 55, 80))
+        d_kinds = kinds
+    found = _handover_grasps(tools, subject, R0, R0, (n_dirs, n_point, kinds), (d_dirs, d_point, d_kinds),
+                             rng, up=1.0)
+    return None if found is None else (found, Handover("split", R0, R0))
+
+
+def clear_distance(tools: ObjectTools, g: Grasp, hand_scale: float, margin: float = 0.005) -> float:
+    """How far (m) the hand of grasp ``g``, opened to its pre-shape, must back off along its
+    approach to keep ``margin`` from the object (at most 0.15 m)."""
+    v = _hand_vertices(hand_models(hand_scale)[g.side], g.R[None], g.t[None], g.open_pose[None])[0]
+    steps = np.arange(0.0, 0.151, 0.01)
+    moved = v[None] + steps[:, None, None] * g.approach
+    sd = tools.df.signed_distance(moved.reshape(-1, 3), far="bound").reshape(len(steps), -1).min(1)
+    ok = np.flatnonzero(sd > margin)
+    return float(steps[ok[0]]) if len(ok) else float(steps[-1])
+
+
+def _tall(inst: ObjectInstance) -> bool:
+    ext = inst.mesh.extents
+    return bool(ext[1] >= 0.08 and ext[1] >= 1.4 * max(ext[0], ext[2]))
+
+
+def offhand_plans(tools: ObjectTools) -> tuple[str, ...]:
+    """Handover plans to try for an object, in order: ``flip`` (see :class:`Handover`) or a
+    layout of :func:`_split_grasps`. Compact symmetric objects (balls, cubes, rings: no
+    room for two hands side by side, and the same shape upside down) are turned over
+    first; handled, tall and other objects are split between the hands first."""
+    inst = tools.inst
+    _, elongation = long_axis_xz(inst)
+    if bool(inst.handles) and inst.grasp_hint == "handle" or (inst.handles and elongation >= 1.6):
+        return ("handle", "halves", "flip")
+    if _tall(inst):
+        return ("tall", "flip", "halves")
+    symmetric = tools.symmetric(_turn(np.array([1.0, 0.0, 0.0]), np.pi)) \
+        or tools.symmetric(_turn(np.array([0.0, 0.0, 1.0]), np.pi))
+    return ("flip", "halves") if elongation < 1.6 and symmetric else ("halves", "flip")
+
+
+def offhand_grasps(tools: ObjectTools, subject: Subject, scene: Scene, rng: np.random.Generator):
+    """Grasps (side -> Grasp) and :class:`Handover` of an off-hand pass, or None."""
+    for plan in offhand_plans(tools):
+        found = _flip_grasps(tools, subject, scene, rng) if plan == "flip" else \
+            _split_grasps(tools, subject, scene, rng, plan)
+        if found is not None:
+            return found
     return None
 
 
@@ -994,6 +1346,7 @@ def make_cast(subject: Subject, inst: ObjectInstance, scene: Scene, intent: str,
     D, N = subject.dominant, subject.off_hand
     synth = tools.synth(subject.hand_scale)
     verb = use_verb(inst) if intent == "use" else intent
+    handover, backoff_off = None, BACKOFF_DIST
     if inst.large:
         if intent == "offhand":
             raise ValueError("two-handed objects have no off-hand pass")
@@ -1002,11 +1355,12 @@ def make_cast(subject: Subject, inst: ObjectInstance, scene: Scene, intent: str,
                   for s in sides}
     elif intent == "offhand":
         sides = (N, D)
-        kind = "power" if inst.grasp_hint == "handle" else None
-        g_n = search_grasp(synth, N, scene.obj_R, approach_dirs(N, False, (30, 60), (0, 30)), rng, kind=kind)
-        g_d = None if g_n is None else _second_grasp(synth, hand_models(subject.hand_scale), g_n, D,
-                                                     scene.obj_R, rng)
-        grasps = {N: g_n, D: g_d}
+        found = offhand_grasps(tools, subject, scene, rng)
+        if found is None:
+            raise EpisodeFailed(f"no off-hand pass of {inst.name}: the two hands do not fit")
+        grasps, handover = found
+        if handover.mode == "flip":
+            backoff_off = clear_distance(tools, grasps[N], subject.hand_scale) + 0.02
     else:
         sides = (D,)
         face = intent == "use" and inst.use_motion in ("drink", "eat", "brush", "look")
@@ -1015,18 +1369,29 @@ def make_cast(subject: Subject, inst: ObjectInstance, scene: Scene, intent: str,
     missing = [s for s, g in grasps.items() if g is None]
     if missing:
         raise EpisodeFailed(f"no {'/'.join(missing)} grasp of {inst.name} for {intent}")
-    return Cast(subject, inst, scene, intent, verb, grasps, sides, int(rng.integers(2**31)))
+    return Cast(subject, inst, scene, intent, verb, grasps, sides, int(rng.integers(2**31)), handover=handover,
+                backoff_off=backoff_off)
 
 
-def plan_motion(cast: Cast, relaxed: dict) -> tuple[Motion, Script, Cast]:
-    """A reachable motion whose free hands stay above the table (raising the edge crossing if not)."""
+def plan_motion(cast: Cast, relaxed: dict) -> tuple[Motion, Script, Cast, dict, dict]:
+    """A reachable motion that keeps hands and object out of the table (raising the edge crossing if not).
+
+    Returns the motion, its script, the cast it was solved for, the posed hand vertices
+    (side -> (T, V, 3)) and their table clearances (side -> (T,)).
+    """
     hands = hand_models(cast.subject.hand_scale)
     for _ in range(4):
         mo, sc, trial = _reachable_motion(cast, relaxed)
         verts = _posed_hands(hands, mo)
-        gap = min(_table_gap(verts[s][~mo.attached[s]], trial.scene) for s in SIDES)
+        gaps = {s: table_clearance(verts[s], trial.scene) for s in SIDES}
+        held = min(_min(gaps[s][mo.attached[s]]) for s in SIDES)
+        obj = _min(object_clearance(mo, trial.inst, trial.scene))
+        if min(held, obj) <= -TABLE_TOLERANCE:
+            raise EpisodeFailed(f"{cast.inst.name}: the held object goes {-min(held, obj) * 1000:.0f} mm "
+                                "into the table")
+        gap = min(_min(gaps[s][~mo.attached[s]]) for s in SIDES)
         if gap > -TABLE_TOLERANCE:
-            return mo, sc, trial
+            return mo, sc, trial, verts, gaps
         cast = Cast(**{**cast.__dict__, "lift_extra": cast.lift_extra + 0.02 - gap})
     raise EpisodeFailed(f"{cast.inst.name}: a hand passes {-gap * 1000:.0f} mm into the table")
 
@@ -1036,18 +1401,23 @@ def _reachable_motion(cast: Cast, relaxed: dict) -> tuple[Motion, Script, Cast]:
     body = body_model(cast.subject)
     base = cast.scene
     front = base.stage.table_front - BODY_TABLE_GAP
-    for amp in AMPLITUDES:
-        pelvis, gain = base.pelvis.copy(), 1.0
+    # (an off-hand pass has no intent motion to shrink: one amplitude)
+    for amp in AMPLITUDES[:1] if cast.intent == "offhand" else AMPLITUDES:
+        pelvis, gain, best = base.pelvis.copy(), 1.0, np.inf
         for _ in range(9):
             trial = Cast(**{**cast.__dict__, "scene": shifted(base, pelvis), "lean_gain": gain})
             sc = choreograph(trial, amp, relaxed)
             mo = solve(body, sc, trial)
             if mo.reached.all():
                 return mo, sc, trial
+            # stepping stalls when the table is in the way, or when two hands far apart pull
+            # the body to and fro (an off-hand pass): bend more
+            stalled = mo.deficit > best - 0.005
+            best = min(best, mo.deficit)
             step = pelvis + (mo.deficit + 0.02) * mo.push
             step[2] = min(step[2], front)
             step[0] = float(np.clip(step[0], -0.25, 0.25))
-            if np.linalg.norm(step - pelvis) < 0.005:  # the table is in the way: bend more
+            if np.linalg.norm(step - pelvis) < 0.005 or stalled:
                 if gain >= 3.0:
                     break
                 gain *= 1.6
@@ -1078,16 +1448,15 @@ def make_episode(subject: Subject, inst: ObjectInstance, intent: str, seed, tool
     """
     tools = tools or ObjectTools(inst)
     rng = np.random.default_rng(seed)
-    scene = make_scene(subject, inst, rng)
+    scene = make_scene(subject, inst, rng, intent)
     cast = make_cast(subject, inst, scene, intent, rng, tools)
     hands = hand_models(subject.hand_scale)
     relaxed = {s: hands[s].named_pose("relaxed").double().numpy() for s in SIDES}
-    mo, sc, cast = plan_motion(cast, relaxed)
-    verts = _posed_hands(hands, mo)
-    contacts, v_obj = {}, {}
+    mo, sc, cast, verts, gaps = plan_motion(cast, relaxed)
+    contacts, v_obj, reps, close = {}, {}, {}, {}
     for s in SIDES:
-        contacts[s], v_obj[s] = hand_contact(verts[s], hands[s], mo, tools, cast.scene)
-    labels = contact_labels(v_obj, contacts, hands, np.asarray(tools.contact_mesh.vertices))
+        contacts[s], v_obj[s], reps[s], close[s] = hand_contact(verts[s], hands[s], mo, tools, cast.scene, gaps[s])
+    labels = contact_labels(v_obj, contacts, hands, np.asarray(tools.contact_mesh.vertices), reps, close)
     seq = build_sequence(cast, mo, labels, index)
     return Episode(seq, mo, sc, cast, contacts, tools.contact_mesh)
 

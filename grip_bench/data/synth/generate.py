@@ -136,12 +136,7 @@ def plan(profile: Profile, n_subjects: int, objects, splits, seed: int) -> list[
 
 # --- workers --------------------------------------------------------------------------------------
 def _attempts(intent: str) -> list[str]:
-    """Deterministic replacement chain when an episode fails: the same intent again, then lift.
-
-    An off-hand pass is tried once: its second grasp rarely clears the first (see the docs).
-    """
-    if intent == "offhand":
-        return ["offhand", "lift", "lift"]
+    """Deterministic replacement chain when an episode fails: the same intent again, then lift."""
     return [intent, intent] + (["lift", "lift"] if intent != "lift" else ["lift"])
 
 
@@ -358,7 +353,7 @@ def format_report(rep: dict, manifest: dict) -> str:
         f"thumb + finger (two-hand: palm + 2 fingers) in contact: {rep['thumb_finger_share']}% of grasp frames",
         f"near-but-not-holding frames before each grasp: {rep['pre_hold_near_frames_per_grasp']}",
         f"object moves while unsupported: {rep['unsupported_object_moves']} frames",
-        f"lowest free hand point above the table: {rep['min_hand_table_gap_mm']} mm",
+        f"hand clearance from the table top (negative: inside the 3 cm top): {rep['min_hand_table_gap_mm']} mm",
         "right-hand contact frequency (% of grasp frames)   SynthGRAB   GRAB",
     ]
     for p in ("thumb", "index", "middle", "ring", "pinky", "palm"):

@@ -34,6 +34,12 @@ GAP = 0.0008  # m; resting clearance of a closed segment (well inside the 4.5 mm
 MAX_PENETRATION = 0.002  # m; deepest tolerated vertex of an accepted grasp
 TABLE_CLEARANCE = 0.004  # m; hand vertices must stay this far above the table
 AVOID_CLEARANCE = 0.006  # m; gap kept to points to avoid (the other hand in a hand-over)
+# Score of a candidate per part in contact (HAND_PARTS order: palm, thumb, index, middle,
+# ring, pinky): people hold most objects with thumb and the first fingers; the palm and the
+# little finger join less often (GRAB: palm 24%, pinky 39% of grasp frames).
+PART_SCORE = np.array([0.1, 1.0, 1.0, 1.0, 0.6, -0.3])
+FLAT_HEIGHT = 0.04  # m; objects lower than this may also be pinched with ring and pinky out straight
+ROLLS = np.radians([0.0, -35.0, 35.0, -70.0, 70.0])  # wrist rolls about the approach tried per direction
 SWEEP_STEPS = 10  # coarse flexion steps per joint level
 BISECT_STEPS = 4  # refinement halvings after the sweep (~0.6 deg at the end)
 
@@ -83,11 +89,15 @@ def _kind_of(j: int) -> str:
     return ("thumb_cmc", "thumb_mcp", "thumb_ip")[k] if j >= 12 else ("mcp", "pip", "dip")[k]
 
 
-def preshape_local(kind: str, table: dict | None = None) -> np.ndarray:
-    """Local pre-shape (15, 3) radians for a grasp kind (or an explicit per-kind table)."""
+def preshape_local(kind: str, table: dict | None = None, flat: bool = False) -> np.ndarray:
+    """Local pre-shape (15, 3) radians for a grasp kind (or an explicit per-kind table).
+
+    flat: a pinch of a flat object lying on the table keeps ring and pinky out straight
+    along the index (tucked under the palm they would reach the table).
+    """
     table = table or (_PINCH if kind in ("precision", "tripod") else _OPEN)
     local = np.array([table[_kind_of(j)] for j in range(15)], dtype=float)
-    if kind == "precision":  # pinch: ring and pinky tucked out of the way
+    if kind == "precision" and not flat:  # pinch: ring and pinky tucked out of the way
         for j in CHAINS["ring"] + CHAINS["pinky"]:
             local[j] = _TUCKED[_kind_of(j)]
     return np.radians(local)
@@ -124,12 +134,83 @@ def _light_hand(side: str, scale: float) -> tuple[ProceduralHand, np.ndarray, Pr
     return full, ids, sub
 
 
+def _subset_hand(full: ProceduralHand, ids: np.ndarray) -> ProceduralHand:
+    """A copy of ``full`` skinning only the vertices ``ids`` (tips kept as the FK keypoints)."""
+    ids = np.union1d(ids, full.fingertip_ids)
+    sub = copy.deepcopy(full)
+    sub.template_vertices = full.template_vertices[ids].clone()
+    sub.weights = full.weights[ids].clone()
+    remap = {int(v): k for k, v in enumerate(ids)}
+    sub.tip_index = torch.tensor([remap[int(v)] for v in full.fingertip_ids])
+    sub.bone_ids_subset = full.bone_ids[ids]
+    return sub
+
+
+@functools.lru_cache(maxsize=8)
+def _level_hands(side: str, scale: float) -> tuple[tuple[ProceduralHand, list[np.ndarray]], ...]:
+    """Per closing level: a hand restricted to the light hand's vertices that level moves,
+    and each finger's moving mask over that restricted hand.
+
+    Closing level ``k`` flexes joint ``k`` of every finger: only vertices skinned to that
+    joint's bone or a more distal one can meet the object, so only they are skinned and
+    looked up in the distance field (about a third of the light hand over the 3 levels).
+    """
+    full, ids, sub = _light_hand(side, scale)
+    out = []
+    for level in range(3):
+        bones = [np.array(CHAINS[f][level:]) + 1 for f in FINGERS]
+        keep = np.zeros(len(ids), bool)
+        for b in bones:
+            keep |= np.isin(sub.bone_ids_subset, b)
+        hand = _subset_hand(full, ids[keep])
+        out.append((hand, [np.isin(hand.bone_ids_subset, b) for b in bones]))
+    return tuple(out)
+
+
+class DistanceBound:
+    """A cheap lower bound of ``df.signed_distance`` (far="bound") to skip points far from the surface.
+
+    Node values of the field on a coarse lattice (about 50 cells across the object, 4 mm at
+    least, reaching 4 cm around the object's box), read at the nearest node, minus half a
+    cell diagonal (distance fields are 1-Lipschitz) and 0.5 mm (twice the grid's trilinear
+    tolerance). A point whose bound exceeds a threshold has a field value above it too, so tests against
+    thresholds (contact, closing gap, penetration) need no field look-up for it.
+    """
+
+    def __init__(self, df: DistanceField, mesh, margin: float = 0.04):
+        lo, hi = np.asarray(mesh.bounds[0], float) - margin, np.asarray(mesh.bounds[1], float) + margin
+        self.h = max(0.004, float(np.max(mesh.extents)) / 50)
+        self.shape = np.ceil((hi - lo) / self.h).astype(np.int64) + 1
+        self.lo = lo
+        axes = [lo[a] + self.h * np.arange(self.shape[a]) for a in range(3)]
+        nodes = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        vals = df.signed_distance(nodes, far="bound")
+        self.values = vals - (0.5 * np.sqrt(3.0) * self.h + 0.0005)
+
+    def lower(self, p: np.ndarray) -> np.ndarray:
+        """Lower bounds (N,) of the field at points (N, 3) on the lattice; beyond it (3.8 cm
+        or more from the object: farther than any threshold) the value of the nearest node."""
+        u = np.rint((p - self.lo) * (1.0 / self.h)).astype(np.int64)
+        np.clip(u, 0, self.shape - 1, out=u)
+        return self.values[(u[:, 0] * self.shape[1] + u[:, 1]) * self.shape[2] + u[:, 2]]
+
+    def signed_distance(self, df: DistanceField, p: np.ndarray, above: float) -> np.ndarray:
+        """``df.signed_distance(p, far="bound")`` (N,) where it may be at most ``above`` (< 3 cm),
+        else a value above ``above``: exact for any test ``value <= above`` or ``value < above``."""
+        lb = self.lower(p)
+        need = lb <= above
+        if need.any():
+            lb[need] = df.signed_distance(p[need], far="bound")
+        return lb
+
+
 class GraspSynthesizer:
     """Finds grasps of one object for hands of one size (see module docstring)."""
 
     def __init__(self, mesh, df: DistanceField, hand_scale: float, *, rest_height: float,
-                 grasp_hint: str, handles=(), large: bool = False):
+                 grasp_hint: str, handles=(), large: bool = False, bound: DistanceBound | None = None):
         self.mesh, self.df = mesh, df
+        self.bound = DistanceBound(df, mesh) if bound is None else bound
         self.scale = float(hand_scale)
         self.table_y = -float(rest_height)
         self.hint, self.handles, self.large = grasp_hint, tuple(handles), large
@@ -141,41 +222,67 @@ class GraspSynthesizer:
     def search(self, side: str, approach_dirs: np.ndarray, finger_ref: np.ndarray,
                rng: np.random.Generator, *, kind: str | None = None, target: np.ndarray | None = None,
                above_table: bool = True, steep: bool | None = None,
-               avoid: np.ndarray | None = None) -> Grasp | None:
+               avoid: np.ndarray | None = None, up: float = 1.0) -> Grasp | None:
         """Best grasp for ``side`` among candidates built from approach directions.
 
         approach_dirs (A, 3): unit object->hand directions (object frame) to try.
         finger_ref (3,): preferred finger direction (object frame), e.g. away from the body.
-        above_table: keep the hand above the table plane the object rests on.
+        above_table: keep the hand (closed, and its pre-shape, which it opens to when it
+        lets go) above the table plane the object rests on.
         steep: add steep top approaches for low objects (default: ``above_table``).
-        avoid (N, 3): object-frame points the hand must keep ``AVOID_CLEARANCE`` from
-        (e.g. the other hand when taking an object over).
+        avoid (N, 3): object-frame points the hand (closed and pre-shaped) must keep
+        ``AVOID_CLEARANCE`` from (e.g. the other hand when taking an object over).
+        up: +1 when the object rests as built (table at ``y = -rest_height``); -1 when it
+        is put down upside down (the table touches its top, ``y = +rest_height``; meshes
+        are centred on their bounding box).
         Returns None if no candidate holds the object.
         """
         steep = above_table if steep is None else steep
         dirs = self._steepen(np.asarray(approach_dirs, float)) if steep else np.asarray(approach_dirs, float)
         for k in ([kind] if kind else self._kinds()):
-            grasp = self._search_kind(side, dirs, finger_ref, rng, k, target, above_table, avoid)
+            grasp = self._search_kind(side, dirs, finger_ref, rng, k, target, above_table, avoid, up)
             if grasp is not None:
                 return grasp
         return None
 
-    def _search_kind(self, side, dirs, finger_ref, rng, kind, target, above_table, avoid):
-        """:meth:`search` for one grasp kind."""
-        target = self._target(kind) if target is None else np.asarray(target, float)
-        R, rolls = self._orientations(side, dirs, finger_ref, kind)
+    def _search_kind(self, side, dirs, finger_ref, rng, kind, target, above_table, avoid, up=1.0):
+        """:meth:`search` for one grasp kind: the usual wrist rolls first, the far ones only
+        when none of those holds (they rarely win the score: this halves the work)."""
+        target = self._target(kind, up) if target is None else np.asarray(target, float)
+        stages = [(ROLLS[:3], True, False), (ROLLS[3:], False, False)]
+        if kind == "precision" and self.mesh.extents[1] < FLAT_HEIGHT:
+            stages.append((ROLLS[:3], True, True))
+        for rolls, wrap, flat in stages:
+            aim = np.array([target[0], self.pinch_height(target[1], up, True), target[2]]) if flat else target
+            grasp = self._search_rolls(side, dirs, finger_ref, rng, kind, aim, above_table, avoid, up,
+                                       rolls, wrap, flat)
+            if grasp is not None:
+                return grasp
+        return None
+
+    def _search_rolls(self, side, dirs, finger_ref, rng, kind, target, above_table, avoid, up, rolls, wrap,
+                      flat=False):
+        R, rolls = self._orientations(side, dirs, finger_ref, kind, rolls, wrap)
         full, ids, sub = _light_hand(side, self.scale)
-        local0 = np.broadcast_to(preshape_local(kind), (len(R), 15, 3)).copy()
+        local0 = np.broadcast_to(preshape_local(kind, flat=flat), (len(R), 15, 3)).copy()
         if kind in ("precision", "tripod"):  # object centred between thumb and index tips
             t = target[None] - np.einsum("cij,j->ci", R, self._anchor(sub, local0, kind))
         else:
             t = self._place(sub, R, local0, target, R @ full.palm_normal, kind)
         ok = np.isfinite(t).all(axis=1)
+        if ok.any() and (above_table or avoid is not None):
+            # The pre-shape comes in and the hand opens to it again when letting go: it
+            # must clear the table and the other hand too (cheap test before closing).
+            v0, _ = _pose(sub, R[ok], t[ok], local0[ok])
+            keep = _clear_of(v0, avoid)
+            if above_table:
+                keep &= (up * v0[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
+            ok[np.flatnonzero(ok)[~keep]] = False
         if not ok.any():
             return None
         R, t, local0, rolls = R[ok], t[ok], local0[ok], rolls[ok]
-        local = self._close(sub, R, t, local0, kind)
-        return self._pick(full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid)
+        local = self._close(side, R, t, local0, kind)
+        return self._pick(full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid, up)
 
     # -- candidates ------------------------------------------------------------------
     def _kinds(self) -> list[str]:
@@ -188,13 +295,24 @@ class GraspSynthesizer:
             return ["precision", "power"]
         return ["power", "precision"]
 
-    def _target(self, kind: str) -> np.ndarray:
+    def _target(self, kind: str, up: float = 1.0) -> np.ndarray:
         if kind == "handle":
             return np.asarray(self.handles[0].point, float)
         if kind in ("precision", "tripod"):  # pinch the upper part, clear of the table
-            top = float(self.mesh.bounds[1, 1])
-            return np.array([self.centre[0], max(self.centre[1], top - 0.02), self.centre[2]])
+            return np.array([self.centre[0], self.pinch_height(self.centre[1], up), self.centre[2]])
         return self.centre
+
+    def pinch_height(self, y: float, up: float = 1.0, flat: bool = False) -> float:
+        """Height (object frame) at which to pinch a part centred at height ``y``: at most 2 cm
+        under the top (the bottom when the object will be put down upside down); ``flat``: in
+        its upper quarter, so the finger pads keep clear of the table under a flat object."""
+        lo, hi = (float(x) for x in self.mesh.bounds[:, 1])
+        if up < 0:
+            lo, hi, y = -hi, -lo, -y
+        y = max(y, hi - 0.02)
+        if flat:
+            y = max(y, lo + 0.75 * (hi - lo))
+        return y if up > 0 else -y
 
     def _steepen(self, dirs: np.ndarray) -> np.ndarray:
         """Add steeper versions of the approach directions for objects low on the table.
@@ -211,10 +329,14 @@ class GraspSynthesizer:
         extra = [np.cos(e) * flat + np.sin(e) * np.array([0.0, 1.0, 0.0]) for e in np.radians([60, 80])]
         return np.unique(np.round(np.vstack([dirs, *extra]), 6), axis=0)
 
-    def _orientations(self, side, approach_dirs, finger_ref, kind):
-        """Wrist rotations (C, 3, 3) for every approach and roll, and each roll angle (C,)."""
-        rolls = np.radians([0.0, -35.0, 35.0, -70.0, 70.0])
-        wrap = self._wrap_axis(kind)
+    def _orientations(self, side, approach_dirs, finger_ref, kind, rolls=None, wrap: bool = True):
+        """Wrist rotations (C, 3, 3) for every approach and roll, and each roll angle (C,).
+
+        rolls (rad): about the approach, from the preferred finger direction; ``wrap``: also
+        the two orientations wrapping the fingers around a long axis (if any).
+        """
+        rolls = ROLLS if rolls is None else rolls
+        wrap = self._wrap_axis(kind) if wrap else None
         Rs, roll_of = [], []
         for d in np.asarray(approach_dirs, float):
             n = -d / np.linalg.norm(d)  # palm faces into the object
@@ -266,29 +388,34 @@ class GraspSynthesizer:
         t = target[None] - np.einsum("cij,j->ci", R, anchor) - n * start
         travelled = np.zeros(len(R))
         done = np.zeros(len(R), bool)
+        v0, _ = _pose(sub, R, np.zeros_like(t), local)  # the pose only translates: skin it once
+        limit = start + self.radius
         for _ in range(40):
-            v, _ = _pose(sub, R, t, local)
-            clearance = self.df.signed_distance(v.reshape(-1, 3), far="bound").reshape(len(R), -1).min(1)
-            step = np.where(done, 0.0, np.maximum(clearance - GAP, 0.0))
-            done |= step < 2e-4
-            t = t + n * step[:, None]
-            travelled += step
-            if done.all():
+            act = np.flatnonzero(~done & (travelled <= limit))  # the others stay put (or missed)
+            if not len(act):
                 break
-        missed = (~done) | (travelled > start + self.radius)
+            pts = v0[act] + t[act, None]
+            clearance = self.df.signed_distance(pts.reshape(-1, 3), far="bound").reshape(len(act), -1).min(1)
+            step = np.maximum(clearance - GAP, 0.0)
+            done[act] |= step < 2e-4
+            t[act] += n[act] * step[:, None]
+            travelled[act] += step
+        missed = (~done) | (travelled > limit)
         t[missed] = np.nan
         return t
 
-    def _close(self, sub, R, t, local0, kind):
+    def _close(self, side, R, t, local0, kind):
         """Flex every finger proximal to distal until contact or limit. Returns local poses (C, 15, 3)."""
-        lower, upper = sub.joint_limits.lower, sub.joint_limits.upper
+        levels = _level_hands(side, self.scale)
+        lower, upper = levels[0][0].joint_limits.lower, levels[0][0].joint_limits.upper
         dirs = _close_dirs(kind)
-        bones = sub.bone_ids_subset
         local = local0.copy()
         for level in range(3):
+            sub, moving = levels[level]
             joints = [CHAINS[f][level] for f in FINGERS]
-            moving = [np.isin(bones, np.array(CHAINS[f][level:]) + 1) for f in FINGERS]
             room = np.stack([_room(local[:, j], dirs[j], lower[j], upper[j]) for j in joints], 1)
+            if kind == "precision":  # a pinch: ring and pinky stay tucked, out of the way
+                room[:, [FINGERS.index("ring"), FINGERS.index("pinky")]] = 0.0
             lo, hi = self._sweep(sub, R, t, local, joints, dirs, room, moving)
             for _ in range(BISECT_STEPS):
                 mid = 0.5 * (lo + hi)
@@ -323,14 +450,14 @@ class GraspSynthesizer:
     def _touching(self, sub, R, t, local, moving) -> np.ndarray:
         """Whether each finger's moving part is within GAP of the surface (N, 5)."""
         v, _ = _pose(sub, R, t, local)
-        sd = self.df.signed_distance(v.reshape(-1, 3), far="bound").reshape(len(R), -1)
+        sd = self.bound.signed_distance(self.df, v.reshape(-1, 3), GAP).reshape(len(R), -1)
         return np.stack([sd[:, m].min(1) < GAP for m in moving], 1)
 
     # -- scoring -----------------------------------------------------------------------
-    def _pick(self, full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid=None):
+    def _pick(self, full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid=None, up=1.0):
         """Evaluate the closed candidates on the full hand and return the best valid one."""
         v, _ = _pose(full, R, t, local)
-        sd = self.df.signed_distance(v.reshape(-1, 3), far="bound").reshape(len(R), -1)
+        sd = self.bound.signed_distance(self.df, v.reshape(-1, 3), CONTACT_THRESHOLD).reshape(len(R), -1)
         parts = full.part_labels
         near = np.stack([(sd[:, parts == p].min(1) <= CONTACT_THRESHOLD) for p in range(len(HAND_PARTS))], 1)
         pen = np.maximum(-sd.min(1), 0.0)
@@ -339,12 +466,23 @@ class GraspSynthesizer:
             holds = near[:, 0] & (n_fingers >= 2) | (n_fingers >= 3)
         else:
             holds = near[:, 1] & (n_fingers >= 1)
-        clear = (v[..., 1].min(1) > self.table_y + TABLE_CLEARANCE) if above_table else np.ones(len(R), bool)
+        clear = ((up * v[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE) if above_table \
+            else np.ones(len(R), bool)
         valid = holds & clear & (pen <= MAX_PENETRATION) & _clear_of(v, avoid)
+        if valid.any() and (above_table or avoid is not None):
+            # Opening (letting go) and closing pass through the poses in between, where a
+            # finger sweeping an arc can reach lower than at either end.
+            k = np.flatnonzero(valid)
+            sub = _light_hand(side, self.scale)[2]
+            for f in (1 / 3, 2 / 3):
+                vm, _ = _pose(sub, R[k], t[k], local[k] + f * (local0[k] - local[k]))
+                ok = _clear_of(vm, avoid)
+                if above_table:
+                    ok &= (up * vm[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
+                valid[k[~ok]] = False
         if not valid.any():
             return None
-        score = (near[:, 1:].sum(1) + 0.5 * near[:, 0] - 2.0 * rolls - 200.0 * pen
-                 + 0.3 * rng.random(len(R)))
+        score = (near @ PART_SCORE - 2.0 * rolls - 200.0 * pen + 0.3 * rng.random(len(R)))
         best = int(np.argmax(np.where(valid, score, -np.inf)))
         to_aa = _local_to_aa(full)
         return Grasp(

@@ -36,12 +36,13 @@ def to_mpl(p: np.ndarray) -> np.ndarray:
 
 
 def _shaded(verts: np.ndarray, faces: np.ndarray, color) -> Poly3DCollection:
-    """A mesh (world coordinates) as a Lambert-shaded collection."""
+    """A mesh (world coordinates) as a Lambert-shaded collection; ``color`` (3,) or per face (F, 3)."""
     tri = to_mpl(verts)[faces]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     shade = 0.35 + 0.65 * np.abs(n @ _LIGHT)
-    rgb = np.clip(np.asarray(color)[None] * shade[:, None], 0, 1)
+    color = np.asarray(color, float)
+    rgb = np.clip((color if color.ndim == 2 else color[None]) * shade[:, None], 0, 1)
     return Poly3DCollection(tri, facecolors=rgb, edgecolors="none", linewidths=0)
 
 
@@ -79,18 +80,38 @@ class Renderer:
         return self.body.segments(out)
 
     def draw(self, ax, t: int, centre: np.ndarray | None = None, radius: float = 0.9,
-             body: bool = True, elev: float = 18, azim: float = 160, table: bool = True) -> None:
+             body: bool = True, elev: float = 18, azim: float = 160, table: bool = True,
+             merge: bool = False, hands_within: float | None = None) -> None:
         """Draw frame ``t`` into a 3D axis; ``centre``/``radius`` (world, m) frame the view.
 
         matplotlib sorts whole collections by depth, so a big table can hide what lies on
-        it in close-ups: leave it out there (``table=False``).
+        it in close-ups: leave it out there (``table=False``), or ``merge`` table, object and
+        hands into one collection of small faces, sorted face by face.
+        hands_within (m): leave out a hand farther than this from the object (close-ups:
+        matplotlib does not clip, so a far hand would still show at the edge).
         """
+        meshes = []
         if table:
             box = _table_box(self.seq, t)
-            ax.add_collection3d(_shaded(box.vertices, box.faces, _COLORS["table"]))
-        ax.add_collection3d(_shaded(self.obj_verts[t], np.asarray(self.mesh.faces), _COLORS["object"]))
+            if merge:  # small faces, so that face-by-face depth sorting works
+                v, f = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=0.05)
+                box = trimesh.Trimesh(v, f, process=False)
+            meshes.append((box.vertices, box.faces, _COLORS["table"]))
+        obj = self.obj_verts[t]
+        meshes.append((obj, np.asarray(self.mesh.faces), _COLORS["object"]))
         for side in ("right", "left"):
-            ax.add_collection3d(_shaded(self.hand_vertices(side, t), self.hands[side].faces, _COLORS[side]))
+            v = self.hand_vertices(side, t)
+            if hands_within is None or np.linalg.norm(v.mean(0) - obj.mean(0)) <= hands_within:
+                meshes.append((v, self.hands[side].faces, _COLORS[side]))
+        if merge:
+            offsets = np.cumsum([0] + [len(v) for v, _, _ in meshes[:-1]])
+            verts = np.concatenate([v for v, _, _ in meshes])
+            faces = np.concatenate([f + o for (_, f, _), o in zip(meshes, offsets, strict=True)])
+            colors = np.concatenate([np.tile(c, (len(f), 1)) for _, f, c in meshes])
+            ax.add_collection3d(_shaded(verts, faces, colors))
+        else:
+            for v, f, c in meshes:
+                ax.add_collection3d(_shaded(v, f, c))
         if body:
             for a, b, r in self.segments(t):
                 pa, pb = to_mpl(a[0]), to_mpl(b[0])
@@ -123,6 +144,32 @@ def render_frames(seq: Sequence, object_mesh: trimesh.Trimesh, frames, path: str
         rend.draw(ax, t, centre, rad, body=not close_up, elev=elev, azim=azim, table=not close_up)
         ax.set_title(titles[k] if titles else f"frame {t}", fontsize=9)
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.93, wspace=0)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def render_story(seq: Sequence, object_mesh: trimesh.Trimesh, frames, path: str | Path, *, titles=None,
+                 centre: np.ndarray | None = None, radius: float = 0.5, elev: float = 25, azim: float = 160,
+                 close_radius: float = 0.13, size: float = 3.2) -> Path:
+    """Two rows of panels for ``frames``: the scene (body, table, object and hands, face-sorted)
+    around ``centre`` (world; default: the object at the middle frame) and a close-up of the
+    object with the hands that hold it. Returns ``path`` (PNG)."""
+    rend = Renderer(seq, object_mesh)
+    frames = list(frames)
+    if centre is None:
+        centre = rend.obj_verts[frames[len(frames) // 2]].mean(0) - np.array([0.0, 0.1, 0.1])
+    fig = plt.figure(figsize=(size * len(frames), 2 * size), dpi=100)
+    for k, t in enumerate(frames):
+        ax = fig.add_subplot(2, len(frames), k + 1, projection="3d")
+        rend.draw(ax, t, centre, radius, elev=elev, azim=azim, merge=True)
+        ax.set_title(titles[k] if titles else f"frame {t}", fontsize=9)
+        ax = fig.add_subplot(2, len(frames), len(frames) + k + 1, projection="3d")
+        rend.draw(ax, t, rend.obj_verts[t].mean(0), close_radius, body=False, table=False, elev=elev,
+                  azim=azim, hands_within=0.25)
+    fig.subplots_adjust(left=0, right=1, bottom=0, top=0.95, wspace=0, hspace=0.02)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
