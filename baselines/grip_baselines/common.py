@@ -75,6 +75,49 @@ def load_own(checkpoint: Path, expected: dict, name: str):
     return ck
 
 
+class TrainedMethod:
+    """Base of the learned baselines: ``train`` is "section config -> fit -> meta -> save".
+
+    A subclass sets ``section`` (its profile section), ``config_cls`` (the train-config
+    dataclass built from it) and ``networks`` (``{checkpoint key: network config class}``)
+    and implements :meth:`fit`, which returns ``({key: network}, extra meta)``; the
+    checkpoint is :func:`save_models` of those networks with :func:`train_meta`.
+    :meth:`load_checkpoint` reads one back (refusing another method's) and returns the
+    networks and the checkpoint.
+    """
+
+    section: str = ""
+    config_cls: type = None
+    networks: dict = {}
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def fit(self, data_dir: Path, cfg, seed: int, progress: bool) -> tuple[dict, dict]:
+        raise NotImplementedError
+
+    def train(
+        self,
+        data_dir: Path,
+        out: Path,
+        *,
+        profile: dict,
+        seed: int = 0,
+        device: str = "cpu",
+        progress: bool = True,
+    ) -> Path:
+        started = time.perf_counter()
+        cfg = section_config(self.config_cls, profile, self.section)
+        models, extra = self.fit(Path(data_dir), cfg, seed, progress)
+        meta = train_meta(self.name, Path(data_dir), seed, cfg, started, **extra)
+        return save_models(Path(out), models, meta)
+
+    def load_checkpoint(self, checkpoint: Path | None):
+        """``({key: network}, checkpoint)`` of a checkpoint written by this method."""
+        ck = load_own(checkpoint, self.networks, self.name)
+        return ck.models(), ck
+
+
 def log(progress: bool, name: str, msg: str) -> None:
     if progress:
         print(f"[{name}] {msg}", flush=True)
@@ -112,6 +155,43 @@ def hand_model(side: str, scale: float = 1.0):
     from grip_bench.bodies.hand import ProceduralHand
 
     return ProceduralHand(side, float(scale))
+
+
+class SubsetHand(torch.nn.Module):
+    """The posed vertices ``ids`` of a :class:`ProceduralHand` only, by the same linear
+    blend skinning restricted to those rows of its skinning matrix.
+
+    ``forward(global_orient, hand_pose, transl)`` as the hand's (``None`` = identity /
+    zero) -> ``(vertices (B, K, 3), None)``. Losses and features read a few hundred of
+    the hand's ~2500 vertices; skinning only those divides the cost of a training step's
+    hand pass (and its backward) by about the same factor.
+    """
+
+    def __init__(self, hand, ids):
+        super().__init__()
+        self.hand = hand
+        ids = torch.as_tensor(np.array(ids, np.int64))
+        w, v = hand.weights[ids], hand.template_vertices[ids]
+        # Rows of [w_vj v_c | w_vj] (K, 64): the pose-free LBS factors of the subset.
+        self.register_buffer("skin", torch.cat([(w[:, :, None] * v[:, None]).flatten(1), w], 1))
+
+    def forward(self, global_orient=None, hand_pose=None, transl=None):
+        from grip_bench.geometry.rotations import axis_angle_to_matrix
+
+        pose = torch.as_tensor(hand_pose).reshape(-1, 15, 3)
+        b = pose.shape[0]
+        rot, pos = self.hand.kinematics(pose)  # (B, 16, 3, 3), (B, 16, 3)
+        rest = self.hand.rest_joints.to(pose)
+        shift = pos - (rot @ rest[:, :, None])[..., 0]
+        x = torch.cat([rot.transpose(2, 3).reshape(b, 48, 3), shift], 1)  # (B, 64, 3)
+        verts = torch.einsum("kj,bjc->bkc", self.skin.to(pose), x)
+        if global_orient is not None:
+            verts = verts @ axis_angle_to_matrix(torch.as_tensor(global_orient).to(pose)).transpose(
+                1, 2
+            )
+        if transl is not None:
+            verts = verts + torch.as_tensor(transl).to(pose)[:, None]
+        return verts, None
 
 
 def seq_hand(seq, side: str):
@@ -152,23 +232,46 @@ def wrist_pose(params: dict) -> tuple[np.ndarray, np.ndarray]:
     return rot, np.asarray(params["transl"], float)
 
 
-def signed_distance(library, seq, world: np.ndarray) -> np.ndarray:
-    """Signed distance (T, N) (m, negative inside) of world points (T, N, 3) to the object.
+def signed_distance(library, seq, world: np.ndarray, frames=None) -> np.ndarray:
+    """Signed distance (T, N) (m, negative inside) of world points (T, N, 3) to the object
+    (``frames``: the points are of those frames only, ``(F, N, 3)`` -> ``(F, N)``).
 
     Beyond the library grid the bounding-box bound answers: exact enough for the 4.5 mm
     contact test and for features that are clipped at a few centimetres.
     """
-    local = library.world_to_object(seq, world)
+    if frames is None:
+        local = library.world_to_object(seq, world)
+    else:
+        R, t = (x[frames] for x in object_pose(seq))
+        local = np.einsum("fji,fvj->fvi", R, np.asarray(world) - t[:, None])
     return library.field(seq.obj_name).signed_distance(local, far="bound")
 
 
 def contact_frames(
-    library, seq, side: str, params: dict | None = None, threshold: float = C.CONTACT_THRESHOLD
+    library,
+    seq,
+    side: str,
+    params: dict | None = None,
+    threshold: float = C.CONTACT_THRESHOLD,
+    frames=None,
 ) -> np.ndarray:
     """Frames (T,) where the hand (``params`` or the sequence's) is within ``threshold``
-    of the object or inside it: the grasp frames of DESIGN 5 for ground-truth hands."""
-    d = signed_distance(library, seq, seq_vertices(seq, side, params))
+    of the object or inside it: the grasp frames of DESIGN 5 for ground-truth hands.
+    With ``frames`` (indices) only those are tested: a ``(len(frames),)`` mask."""
+    p = params or seq.hand_params(side)
+    if frames is not None:
+        p = {k: np.asarray(p[k])[frames] for k in ("global_orient", "hand_pose", "transl")}
+    d = signed_distance(library, seq, seq_vertices(seq, side, p), frames)
     return (d <= threshold).any(axis=1)
+
+
+def strided_frames(n_frames: int, stride: int, rng: np.random.Generator | None = None):
+    """Every ``stride``-th frame index of ``n_frames`` from a random phase (0 without
+    ``rng``): training samples of neighbouring frames are near duplicates, so striding
+    keeps their variety at a fraction of the posing and distance cost."""
+    stride = max(int(stride), 1)
+    phase = int(rng.integers(stride)) if (rng is not None and stride > 1) else 0
+    return np.arange(min(phase, max(n_frames - 1, 0)), n_frames, stride)
 
 
 def mirror_pose(aa: np.ndarray) -> np.ndarray:

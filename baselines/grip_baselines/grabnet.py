@@ -46,8 +46,10 @@ __all__ = [
     "RefineNetConfig",
     "RefineOutput",
     "losses",
+    "contact_loss",
     "make_distance_fn",
     "make_hand_fn",
+    "penetration_loss",
     "sdf_with_gradient",
 ]
 
@@ -372,6 +374,8 @@ class GrabNetLossConfig:
 
     The vertex term is in metres, so its weight of 100 reads it in centimetres, on the
     scale of the 6D pose term. GRAB's "weight regulariser" is the optimiser's weight decay.
+    The contact and penetration terms (GRAB Sec. 4: "a penetration and a contact loss")
+    are in metres too; see :func:`contact_loss` and :func:`penetration_loss`.
     """
 
     w_vertex: float = 100.0  # L1 on hand vertices
@@ -389,6 +393,23 @@ def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
     return (-0.5 * (1 + logvar - mu.pow(2) - logvar.exp()).sum(-1)).mean()
 
 
+def penetration_loss(distances: torch.Tensor) -> torch.Tensor:
+    """Penetration term: mean depth (m) of the hand vertices inside the object.
+
+    distances (B, V) signed (m, negative inside); a vertex outside or on the surface adds
+    nothing, one at depth ``p`` adds ``p``; the sum over vertices is averaged over ``B * V``.
+    The gradient pushes each inside vertex along the outward distance gradient.
+    """
+    return torch.relu(-distances).mean()
+
+
+def contact_loss(distances: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
+    """Contact term: mean unsigned distance (m) to the object of the vertices that are in
+    contact in the ground truth (``contact (B, V)`` bool); 0 when no vertex is."""
+    mask = contact.to(distances.dtype)
+    return (distances.abs() * mask).sum() / mask.sum().clamp(min=1)
+
+
 def losses(
     pred: GraspParams,
     target: GraspParams,
@@ -399,12 +420,15 @@ def losses(
     logvar: torch.Tensor | None = None,
     sdf: SdfFn | None = None,
     faces=None,
+    gt_contact: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """CoarseNet / RefineNet training loss; returns ``(total, {term: value})``.
 
     Pose and translation terms always; vertex (and edge) terms when ``hand_fn`` is given;
     KL when ``mu, logvar`` are given (CoarseNet); contact and penetration when ``sdf``
-    (differentiable, object frame) and their weights are given.
+    (differentiable, object frame) and their weights are given. ``gt_contact (B, V)``:
+    the ground-truth contact vertices, if known (else ``sdf`` of the target hand within
+    ``cfg.contact_threshold``).
     """
     cfg = cfg or GrabNetLossConfig()
     terms = {
@@ -427,10 +451,11 @@ def losses(
             total = total + cfg.w_edge * terms["edge"]
         if sdf is not None and (cfg.w_contact or cfg.w_penetration):
             d_pred = sdf(v_pred)  # (B, V)
-            with torch.no_grad():
-                gt_contact = sdf(v_gt) < cfg.contact_threshold
-            terms["contact"] = (d_pred.abs() * gt_contact).sum() / gt_contact.sum().clamp(min=1)
-            terms["penetration"] = torch.relu(-d_pred).mean()
+            if gt_contact is None:
+                with torch.no_grad():
+                    gt_contact = sdf(v_gt) < cfg.contact_threshold
+            terms["contact"] = contact_loss(d_pred, gt_contact)
+            terms["penetration"] = penetration_loss(d_pred)
             total = (
                 total + cfg.w_contact * terms["contact"] + cfg.w_penetration * terms["penetration"]
             )

@@ -1,14 +1,16 @@
 """``grabnet`` and ``grabnet-smplx``: GrabNet-style static grasp synthesis as benchmark methods.
 
 Both train CoarseNet (cVAE, :mod:`grip_baselines.grabnet`) on ground-truth grasp frames
-of the train split, then RefineNet on perturbed ground-truth grasps (GRAB S.9.2). They
-differ in the *model frame* a grasp lives in:
+of the train split, then RefineNet on perturbed ground-truth grasps and CoarseNet's own
+reconstructions (GRAB S.9.2), with GRAB's contact and penetration loss terms on the
+object's distance field next to the vertex and pose terms. They differ in the *model
+frame* a grasp lives in:
 
-* ``grabnet`` (free wrist, GrabNet proper): the right hand's grasp in the object frame,
-  centred at the BPS centre (the object's surface centroid), under a random rotation
-  per sample (augmentation). The network generates wrist orientation, wrist position and
-  fingers. At prediction the frame is the object centred and *aligned with the world*,
-  so the generated wrist is placed in the world by the object's translation only.
+* ``grabnet`` (free wrist, GrabNet proper): the right hand's grasp centred at the BPS
+  centre (the object's surface centroid), in axes *aligned with the world* (optionally
+  under a random rotation per training sample, ``augment``). The network generates wrist
+  orientation, wrist position and fingers; the generated wrist is placed in the world by
+  the object's translation only.
 * ``grabnet-smplx`` (tied to the body): the model frame is the input wrist frame (left
   hands mirrored into the right hand's frame), the BPS basis is centred on the palm, and
   only the fingers are used: the wrist comes from the body motion and may sit where no
@@ -25,7 +27,6 @@ object); other frames, and the left hand of ``grabnet``, keep the input unchange
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,7 +36,12 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.constants import GRABNET_NOISE_VAR, GRABNET_SMPLX_BPS_CENTRE, PROXIMITY_N_VERTS
+from grip_bench.constants import (
+    CONTACT_THRESHOLD,
+    GRABNET_NOISE_VAR,
+    GRABNET_SMPLX_BPS_CENTRE,
+    PROXIMITY_N_VERTS,
+)
 from grip_bench.geometry.rotations import (
     axis_angle_to_rotation_6d,
     rotation_6d_to_axis_angle,
@@ -72,15 +78,30 @@ class GrabNetTrainConfig:
     weight_decay: float = 1e-5  # GRAB's "weight regulariser"
     w_kl: float = 5e-3
     max_frames: int = 6000  # grasp frames sampled from the train split (0 = all)
+    # Frames looked at per hand: every frame_stride-th (neighbouring frames are near
+    # duplicates; striding divides the posing and distance cost of finding grasp frames).
+    frame_stride: int = 4
     max_sequences: int = 0  # train files read (0 = all)
     loss_vertices: int = 256  # hand vertices in the vertex L1 (a fixed stride subset)
-    augment: bool = True  # random object rotation per sample (grabnet only)
+    # grabnet only: a uniformly random object rotation per sample. Off, the samples are in
+    # the frame prediction uses (object centred, aligned with the world), where grasps keep
+    # their relation to gravity and the table; on, that relation must be learned from the
+    # BPS code alone, which a CPU-sized CoarseNet does not manage (it collapses to the
+    # mean grasp, a hand inside the object).
+    augment: bool = False
     # RefineNet training noise (std). GRAB S.9.2 gives variances 0.2 rad^2 (fingers) and
     # 0.004 rad^2 (root); its translation variance 0.05 would put the hand 22 cm away,
     # beyond the 5 cm distance clip, so a centimetre-scale translation noise is used.
     noise_finger: float = math.sqrt(GRABNET_NOISE_VAR[0])
     noise_orient: float = math.sqrt(GRABNET_NOISE_VAR[1])
     noise_transl: float = 0.01
+    # GRAB's contact and penetration loss terms (metres, so these weights read them in
+    # units of 1 cm / 1 mm): on CoarseNet's reconstructions and on every RefineNet step.
+    w_contact: float = 100.0
+    w_penetration: float = 1000.0
+    # Share of each RefineNet batch that starts from CoarseNet's reconstruction of the
+    # grasp instead of the noisy ground truth: what RefineNet refines at inference.
+    refine_coarse_share: float = 0.5
 
 
 @dataclass
@@ -116,11 +137,9 @@ def _frame_samples(seq, library, side: str, frames: np.ndarray, tied: bool, rng)
     c = object_centre(library.mesh(seq.obj_name))
     R_loc = np.einsum("nji,njk->nik", R_o, R_w)  # wrist in the object frame
     p_loc = np.einsum("nji,nj->ni", R_o, p_w - t_o)
-    Q = (
-        Rotation.random(n, random_state=rng).as_matrix()
-        if rng is not None
-        else np.tile(IDENTITY, (n, 1, 1))
-    )
+    # Model frame y = Q (x - c): a random rotation (augmentation), or else the object
+    # centred and aligned with the world (Q = R_o), the frame prediction generates in.
+    Q = Rotation.random(n, random_state=rng).as_matrix() if rng is not None else R_o
     A = np.transpose(Q, (0, 2, 1))
     orient = Q @ R_loc
     transl = np.einsum("nij,nj->ni", Q, p_loc - c)
@@ -137,9 +156,15 @@ def collect_samples(seqs, library, cfg: GrabNetTrainConfig, tied: bool, seed: in
     sides = U.SIDES if tied else ("right",)
     names = sorted({s.obj_name for s in seqs})
     parts = []
+    # Candidate frames: every frame_stride-th frame from a random phase; the tied variant
+    # takes its two hands on interleaved frames, so both variants pose as many hands.
+    stride = cfg.frame_stride * len(sides)
     for seq in seqs:
-        for side in sides:
-            frames = np.flatnonzero(U.contact_frames(library, seq, side))
+        phase = int(rng.integers(stride))
+        for k, side in enumerate(sides):
+            start = (phase + k * cfg.frame_stride) % stride
+            cand = np.arange(start, seq.n_frames, stride)
+            frames = cand[U.contact_frames(library, seq, side, frames=cand)]
             if len(frames):
                 aug = rng if (cfg.augment and not tied) else None
                 arrays = _frame_samples(seq, library, side, frames, tied, aug)
@@ -195,24 +220,92 @@ def pin_wrist(g: GraspParams) -> GraspParams:
     return GraspParams(eye, torch.zeros_like(g.transl), g.hand_pose)
 
 
+def field_distance_and_gradient(field, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance ``(N,)`` (m) and unit outward gradient ``(N, 3)`` of object-frame
+    points ``q (N, 3)``.
+
+    Within the field's grid padding of the object (every point that can be inside it or
+    in contact) both come from the field; beyond it the distance is the bounding-box
+    bound (``far="bound"``) and the gradient points away from the box, which is all a
+    loss needs of a far point (the direction back towards the object) and costs no
+    exact mesh query.
+    """
+    d = field.signed_distance(q, far="bound")
+    g = np.empty_like(q)
+    lo, hi = field.mesh.bounds
+    off = q - np.clip(q, lo, hi)
+    norm = np.linalg.norm(off, axis=1)
+    near = (d < 0.99 * field.padding) | (norm < 1e-9)
+    if near.any():
+        g[near] = field.gradient(q[near])
+    g[~near] = off[~near] / norm[~near, None]
+    return d, g
+
+
+class _FeedSDF(torch.autograd.Function):
+    """Signed distance of model-frame points with the field's gradient as derivative."""
+
+    @staticmethod
+    def forward(ctx, points, feed):
+        d, g = feed.distance(points.detach(), gradient=True)
+        ctx.save_for_backward(g)
+        return d
+
+    @staticmethod
+    def backward(ctx, grad):
+        (g,) = ctx.saved_tensors
+        return grad[..., None] * g, None
+
+
 class DistanceFeed:
-    """RefineNet's distance function for a batch: signed distances (B, K) (m) of the
-    proximity vertices of a model-frame grasp to each sample's object."""
+    """Object distances of model-frame points for a batch of samples.
+
+    Sample ``i`` maps model-frame points ``y`` to its object's frame ``x = A_i y + b_i``.
+    ``feed(grasp)`` is RefineNet's distance function (signed distances ``(B, K)`` of the
+    proximity vertices); :meth:`sdf` is the differentiable signed distance of any
+    model-frame points ``(B, V, 3)``, for the contact and penetration losses.
+    """
 
     def __init__(self, library, names, obj, A, b, hand, vertex_ids):
         self.library, self.names, self.obj = library, names, np.asarray(obj)
         self.A, self.b = np.asarray(A), np.asarray(b)
-        self.hand_fn = make_hand_fn(hand, vertex_ids)
+        self.hand_fn = make_hand_fn(U.SubsetHand(hand, vertex_ids))
+
+    def subset(self, idx) -> DistanceFeed:
+        """The feed of samples ``idx`` (same library, objects and hand)."""
+        out = object.__new__(DistanceFeed)
+        out.library, out.names, out.hand_fn = self.library, self.names, self.hand_fn
+        out.obj, out.A, out.b = self.obj[idx], self.A[idx], self.b[idx]
+        return out
+
+    def distance(self, points: torch.Tensor, gradient: bool = False):
+        """Signed distances ``(B, V)`` of model-frame points ``(B, V, 3)`` (torch, the
+        points' dtype); with ``gradient`` also ``d distance / d point`` ``(B, V, 3)``."""
+        y = points.detach().double().cpu().numpy()
+        x = np.einsum("bij,bkj->bki", self.A, y) + self.b[:, None]
+        d = np.empty(y.shape[:2])
+        g = np.empty(y.shape) if gradient else None
+        for k in np.unique(self.obj):
+            rows = self.obj == k
+            field = self.library.field(self.names[k])
+            if gradient:
+                dk, gk = field_distance_and_gradient(field, x[rows].reshape(-1, 3))
+                d[rows] = dk.reshape(-1, y.shape[1])
+                # x = A y + b, so d distance / dy = A^T grad_x.
+                g[rows] = np.einsum("bji,bkj->bki", self.A[rows], gk.reshape(-1, y.shape[1], 3))
+            else:
+                d[rows] = field.signed_distance(x[rows], far="bound")
+        t = lambda a: torch.as_tensor(a, dtype=points.dtype, device=points.device)  # noqa: E731
+        return (t(d), t(g)) if gradient else t(d)
+
+    def sdf(self, points: torch.Tensor) -> torch.Tensor:
+        """Differentiable signed distances ``(B, V)`` of model-frame points ``(B, V, 3)``."""
+        return _FeedSDF.apply(points, self)
 
     def __call__(self, grasp: GraspParams) -> torch.Tensor:
         with torch.no_grad():
-            y = self.hand_fn(grasp).double().numpy()  # (B, K, 3) model frame
-        x = np.einsum("bij,bkj->bki", self.A, y) + self.b[:, None]
-        d = np.empty(y.shape[:2])
-        for k in np.unique(self.obj):
-            rows = self.obj == k
-            d[rows] = self.library.field(self.names[k]).signed_distance(x[rows], far="bound")
-        return torch.as_tensor(d, dtype=grasp.transl.dtype)
+            y = self.hand_fn(grasp)  # (B, K, 3) model frame
+        return self.distance(y).to(grasp.transl.dtype)
 
 
 def refine(net, grasp: GraspParams, feed, tied: bool) -> list[GraspParams]:
@@ -266,8 +359,22 @@ def _epochs(name, net, params, n, cfg, epochs, step, progress, rng):
     return net.eval()
 
 
+def _coarse_inputs(coarse, bps, gt: GraspParams, tied: bool, gen) -> GraspParams:
+    """CoarseNet's reconstructions of ``gt`` (z from the posterior), as RefineNet sees
+    CoarseNet grasps at inference; no gradient into CoarseNet."""
+    with torch.no_grad():
+        g = coarse(bps, gt, generator=gen).grasp
+    return pin_wrist(g) if tied else g
+
+
 def train_grabnet(name, data_dir, cfg, tied, seed, progress):
-    """CoarseNet then RefineNet; returns (coarse, refine, n_samples)."""
+    """CoarseNet then RefineNet; returns (coarse, refine, n_samples).
+
+    Both are trained with the vertex, pose and translation data terms plus GRAB's contact
+    and penetration terms on the object's distance field (``w_contact``,
+    ``w_penetration``); RefineNet sees noisy ground truth and, for a share
+    ``refine_coarse_share`` of each batch, CoarseNet's own reconstructions.
+    """
     from grip_bench.data.library import ObjectLibrary
 
     torch.manual_seed(seed)
@@ -283,10 +390,19 @@ def train_grabnet(name, data_dir, cfg, tied, seed, progress):
     )
     target = to_grasp(s.orient, s.transl, s.pose)
     hand = U.hand_model("right")
-    vids = U.vertex_subset(hand, cfg.loss_vertices)
-    hand_fn = make_hand_fn(hand, vids)
-    lcfg = GrabNetLossConfig(w_kl=cfg.w_kl)
+    hand_fn = make_hand_fn(U.SubsetHand(hand, U.vertex_subset(hand, cfg.loss_vertices)))
+    feed_all = DistanceFeed(library, s.names, s.obj, s.A, s.b, hand, hand.proximity_ids)
+    with torch.no_grad():
+        gt_contact = feed_all.distance(hand_fn(target)) < CONTACT_THRESHOLD  # (N, V)
+    lcfg = GrabNetLossConfig(
+        w_kl=cfg.w_kl, w_contact=cfg.w_contact, w_penetration=cfg.w_penetration
+    )
     U.log(progress, name, f"{len(s.obj)} grasp frames of {len(s.names)} objects")
+
+    def loss(pred, idx, feed, contact=True, **kw):
+        gt = index_grasp(target, idx)
+        sdf = dict(sdf=feed.sdf, gt_contact=gt_contact[idx]) if contact else {}
+        return losses(pred, gt, lcfg, hand_fn=hand_fn, **sdf, **kw)
 
     coarse = CoarseNetConfig(
         bps_dim=cfg.bps_points, width=cfg.width, hidden=cfg.hidden, latent=cfg.latent
@@ -294,80 +410,59 @@ def train_grabnet(name, data_dir, cfg, tied, seed, progress):
 
     def coarse_step(idx):
         out = coarse(bps[idx], index_grasp(target, idx), generator=gen)
-        return losses(
-            out.grasp, index_grasp(target, idx), lcfg, hand_fn=hand_fn, mu=out.mu, logvar=out.logvar
-        )[0]
+        return loss(out.grasp, idx, feed_all.subset(idx), mu=out.mu, logvar=out.logvar)[0]
 
-    _epochs(
-        name,
-        coarse,
-        coarse.parameters(),
-        len(s.obj),
-        cfg,
-        cfg.epochs_coarse,
-        coarse_step,
-        progress,
-        rng,
-    )
+    _epochs(name, coarse, coarse.parameters(), len(s.obj), cfg, cfg.epochs_coarse, coarse_step,
+            progress, rng)  # fmt: skip
 
     refine_net = RefineNetConfig(
         n_verts=PROXIMITY_N_VERTS, width=cfg.refine_width, hidden=cfg.refine_width
     ).build()
-    feed_all = DistanceFeed(library, s.names, s.obj, s.A, s.b, hand, hand.proximity_ids)
     refine_net.contact_weights.copy_(_contact_weights(feed_all, target))
-    lcfg_r = GrabNetLossConfig(w_kl=0.0)
 
     def refine_step(idx):
-        feed = DistanceFeed(
-            library, s.names, s.obj[idx], s.A[idx], s.b[idx], hand, hand.proximity_ids
-        )
+        feed = feed_all.subset(idx)
         gt = index_grasp(target, idx)
-        steps = refine(refine_net, _noisy(gt, cfg, tied, gen), feed, tied)
-        return sum(losses(g, gt, lcfg_r, hand_fn=hand_fn)[0] for g in steps) / len(steps)
+        start = _noisy(gt, cfg, tied, gen)
+        n_coarse = int(round(cfg.refine_coarse_share * len(idx)))
+        if n_coarse:
+            rows = np.sort(rng.permutation(len(idx))[:n_coarse])
+            rec = _coarse_inputs(coarse.eval(), bps[idx[rows]], index_grasp(gt, rows), tied, gen)
+            at = torch.as_tensor(rows)
+            start = GraspParams(*(a.index_copy(0, at, b) for a, b in zip(start, rec, strict=True)))
+        steps = refine(refine_net, start, feed, tied)
+        # Data terms on every step; contact and penetration on the final grasp (the one
+        # that is used), which also keeps the distance queries to one per batch.
+        last = len(steps) - 1
+        return sum(loss(g, idx, feed, contact=i == last)[0] for i, g in enumerate(steps)) / len(
+            steps
+        )
 
-    _epochs(
-        name,
-        refine_net,
-        refine_net.parameters(),
-        len(s.obj),
-        cfg,
-        cfg.epochs_refine,
-        refine_step,
-        progress,
-        rng,
-    )
+    _epochs(name, refine_net, refine_net.parameters(), len(s.obj), cfg, cfg.epochs_refine,
+            refine_step, progress, rng)  # fmt: skip
     return coarse, refine_net, len(s.obj)
 
 
 # ----------------------------------------------------------------------------- method
 
 
-class GrabNetMethod:
+class GrabNetMethod(U.TrainedMethod):
     """GrabNet-style grasp synthesis (``tied=False``) or its body-tied variant (``tied=True``)."""
 
+    section, config_cls = "grabnet", GrabNetTrainConfig
+    networks = {"coarse": CoarseNetConfig, "refine": RefineNetConfig}
+
     def __init__(self, name: str, tied: bool = False):
-        self.name, self.tied = name, tied
+        super().__init__(name)
+        self.tied = tied
         self.coarse = self.refine_net = None
 
-    def train(
-        self,
-        data_dir: Path,
-        out: Path,
-        *,
-        profile: dict,
-        seed: int = 0,
-        device: str = "cpu",
-        progress: bool = True,
-    ) -> Path:
-        t0 = time.perf_counter()
-        cfg = U.section_config(GrabNetTrainConfig, profile, "grabnet")
-        coarse, ref, n = train_grabnet(self.name, Path(data_dir), cfg, self.tied, seed, progress)
-        meta = U.train_meta(self.name, Path(data_dir), seed, cfg, t0, n_samples=n, tied=self.tied)
-        return U.save_models(Path(out), {"coarse": coarse, "refine": ref}, meta)
+    def fit(self, data_dir: Path, cfg: GrabNetTrainConfig, seed: int, progress: bool):
+        coarse, ref, n = train_grabnet(self.name, data_dir, cfg, self.tied, seed, progress)
+        return {"coarse": coarse, "refine": ref}, {"n_samples": n, "tied": self.tied}
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        ck = U.load_own(checkpoint, {"coarse": CoarseNetConfig, "refine": RefineNetConfig}, self.name)
-        nets = ck.models()
+        nets = self.load_checkpoint(checkpoint)[0]
         self.coarse, self.refine_net = nets["coarse"], nets["refine"]
 
     def predict(self, seq, ctx: PredictContext):
@@ -391,9 +486,9 @@ class GrabNetMethod:
         if len(frames) == 0:
             return None
         library, cfg = ctx.library, self.coarse.cfg
+        # Without augmentation the model frame is the prediction frame: the wrist frame
+        # (tied) or the object centred and aligned with the world (A = R_o^T).
         A, b, _, _, _ = _frame_samples(seq, library, side, frames, self.tied, None)
-        if not self.tied:  # object centred, aligned with the world: A = R_o^T
-            A = np.transpose(U.object_pose(seq)[0][frames], (0, 2, 1))
         names, obj = [seq.obj_name], np.zeros(len(frames), int)
         centre = GRABNET_SMPLX_BPS_CENTRE if self.tied else (0.0, 0.0, 0.0)
         bps = torch.as_tensor(

@@ -13,7 +13,6 @@ never read). The left hand is returned unchanged: ManipNet is a single-hand mode
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -199,32 +198,21 @@ def train_manipnet(name, data_dir, cfg: ManipNetTrainConfig, seed, progress):
     return net.eval(), len(owner)
 
 
-class ManipNetMethod:
+class ManipNetMethod(U.TrainedMethod):
     """Right-hand fingers rolled out frame by frame at the input wrists."""
 
+    section, config_cls, networks = "manipnet", ManipNetTrainConfig, {"manipnet": ManipNetConfig}
+
     def __init__(self, name: str):
-        self.name = name
+        super().__init__(name)
         self.net = None
 
-    def train(
-        self,
-        data_dir: Path,
-        out: Path,
-        *,
-        profile: dict,
-        seed: int = 0,
-        device: str = "cpu",
-        progress: bool = True,
-    ) -> Path:
-        t0 = time.perf_counter()
-        cfg = U.section_config(ManipNetTrainConfig, profile, "manipnet")
-        net, n = train_manipnet(self.name, Path(data_dir), cfg, seed, progress)
-        meta = U.train_meta(self.name, Path(data_dir), seed, cfg, t0, n_samples=n)
-        return U.save_models(Path(out), {"manipnet": net}, meta)
+    def fit(self, data_dir: Path, cfg: ManipNetTrainConfig, seed: int, progress: bool):
+        net, n = train_manipnet(self.name, data_dir, cfg, seed, progress)
+        return {"manipnet": net}, {"n_samples": n}
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        ck = U.load_own(checkpoint, {"manipnet": ManipNetConfig}, self.name)
-        self.net = ck.models()["manipnet"]
+        self.net = self.load_checkpoint(checkpoint)[0]["manipnet"]
 
     def predict(self, seq, ctx: PredictContext):
         """Autoregressive right-hand fingers; wrists and the left hand as in the input."""

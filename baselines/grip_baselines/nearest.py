@@ -14,7 +14,6 @@ the right hand's convention and are mirrored back when copied. Wrists stay the i
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,37 +112,26 @@ def build_index(feats: np.ndarray, poses: np.ndarray, n_components: int) -> Near
     return index
 
 
-class NearestMethod:
+class NearestMethod(U.TrainedMethod):
     """Retrieval of training finger poses by sensor similarity."""
 
+    section, config_cls, networks = "nearest", NearestTrainConfig, {"index": NearestIndexConfig}
+
     def __init__(self, name: str):
-        self.name = name
+        super().__init__(name)
         self.index = self.tree = None
 
-    def train(
-        self,
-        data_dir: Path,
-        out: Path,
-        *,
-        profile: dict,
-        seed: int = 0,
-        device: str = "cpu",
-        progress: bool = True,
-    ) -> Path:
+    def fit(self, data_dir: Path, cfg: NearestTrainConfig, seed: int, progress: bool):
         from grip_bench.data.library import ObjectLibrary
 
-        t0 = time.perf_counter()
-        cfg = U.section_config(NearestTrainConfig, profile, "nearest")
         seqs = U.train_sequences(data_dir, cfg.max_sequences, seed)
         feats, poses = _training_items(seqs, ObjectLibrary(data_dir), cfg, seed)
         index = build_index(feats, poses, cfg.n_components)
         U.log(progress, self.name, f"indexed {len(feats)} hand frames")
-        meta = U.train_meta(self.name, Path(data_dir), seed, cfg, t0, n_samples=len(feats))
-        return U.save_models(Path(out), {"index": index}, meta)
+        return {"index": index}, {"n_samples": len(feats)}
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        ck = U.load_own(checkpoint, {"index": NearestIndexConfig}, self.name)
-        self.index = ck.models()["index"]
+        self.index = self.load_checkpoint(checkpoint)[0]["index"]
         self.tree = cKDTree(self.index.keys.numpy())
 
     def predict(self, seq, ctx: PredictContext):

@@ -43,6 +43,7 @@ __all__ = [
     "correspondence_field",
     "field_losses",
     "fit_hand_to_field",
+    "hit_pos_weight",
     "ray_mesh_hits",
 ]
 
@@ -251,9 +252,18 @@ class TemporalAEConfig:
     window: int = TOCH_WINDOW  # frames per window the model is trained on
     # Lengths are divided by this (m) inside the network so features are O(1).
     length_scale: float = TOCH_MAX_DIST
+    # > 0: a per-point skip path of this width. Each point's own noisy field over time
+    # goes through two temporal convolutions (kernel ``skip_kernel``) into the decoder,
+    # and the distance / correspondence outputs are residuals on the noisy values. 0: the
+    # noisy field reaches the decoder only through the pooled per-frame code (the first
+    # design; it must rebuild every point's field from a frame_dim-sized code, which a
+    # CPU-trained model does not learn: its fields came out worse than the noisy input).
+    skip_dim: int = 0
+    skip_kernel: int = 5
+    decoder_hidden: int = 256  # per-point decoder: hidden widths decoder_hidden, half of it
 
     def __post_init__(self):
-        check_config(self)
+        check_config(self, may_be_zero=("skip_dim",))
         if self.field_dim != FIELD_DIM:
             raise ValueError(f"TemporalAEConfig.field_dim must be {FIELD_DIM}")
 
@@ -275,8 +285,11 @@ class TemporalAE(nn.Module):
     Encoder: a PointNet per frame (shared MLP over each point's position, normal and
     field, then max-pool) -> a bidirectional GRU over the frames. Decoder: per point, the
     frame's temporal code plus a feature of the point's *geometry only* -> clean field.
-    The noisy field reaches the decoder only through the pooled, temporally mixed code:
-    that bottleneck is what projects a noisy field onto plausible ones.
+    With ``cfg.skip_dim = 0`` the noisy field reaches the decoder only through the pooled,
+    temporally mixed code. With ``skip_dim > 0`` the decoder also sees each point's own
+    field smoothed over time (two temporal convolutions per point), and the distance and
+    correspondence it outputs are corrections of the noisy ones: the pooled code says
+    where the hand is as a whole, the skip path keeps the per-point detail.
     """
 
     def __init__(self, cfg: TemporalAEConfig):
@@ -292,7 +305,21 @@ class TemporalAE(nn.Module):
             batch_first=True,
             bidirectional=True,
         )
-        self.decoder = _mlp(cfg.local_dim + 2 * cfg.gru_hidden, 256, 128, cfg.field_dim)
+        skip = cfg.skip_dim
+        if skip:
+            k, pad = cfg.skip_kernel, cfg.skip_kernel // 2
+            self.skip = nn.Sequential(
+                nn.Conv1d(cfg.field_dim, skip, k, padding=pad, padding_mode="replicate"),
+                nn.ReLU(),
+                nn.Conv1d(skip, skip, k, padding=pad, padding_mode="replicate"),
+                nn.ReLU(),
+            )
+        self.decoder = _mlp(
+            cfg.local_dim + 2 * cfg.gru_hidden + skip,
+            cfg.decoder_hidden,
+            max(cfg.decoder_hidden // 2, 1),
+            cfg.field_dim,
+        )
 
     def _scale_field(self, field: torch.Tensor, inverse: bool = False) -> torch.Tensor:
         k = self.cfg.length_scale if inverse else 1.0 / self.cfg.length_scale
@@ -313,8 +340,33 @@ class TemporalAE(nn.Module):
         frame = h.amax(dim=2)  # (B, T, frame_dim)
         temporal, _ = self.gru(frame)  # (B, T, 2*gru_hidden)
         local = self.geometry(geo)  # (B, T, N, local_dim)
-        dec_in = torch.cat([local, temporal[:, :, None].expand(-1, -1, n, -1)], -1)
-        return self._scale_field(self.decoder(dec_in), inverse=True)  # (B, T, N, 5)
+        parts = [local, temporal[:, :, None].expand(-1, -1, n, -1)]
+        if not self.cfg.skip_dim:
+            return self._scale_field(self.decoder(torch.cat(parts, -1)), inverse=True)
+        scaled = self._scale_field(field)  # (B, T, N, 5)
+        per_point = scaled.permute(0, 2, 3, 1).reshape(b * n, FIELD_DIM, t)  # time last
+        skip = self.skip(per_point).reshape(b, n, -1, t).permute(0, 3, 1, 2)  # (B, T, N, skip)
+        out = self.decoder(torch.cat([*parts, skip], -1))
+        # Residual on the noisy distance and correspondence; the hit logit is absolute.
+        out = torch.cat([out[..., :1], out[..., 1:] + scaled[..., 1:]], -1)
+        return self._scale_field(out, inverse=True)  # (B, T, N, 5)
+
+
+def hit_pos_weight(hits, max_weight: float = 50.0) -> float:
+    """BCE weight of the positive (hit) class: ``#misses / #hits`` of target fields
+    ``(..., N)`` in {0, 1}, at most ``max_weight`` (1 when there is no hit).
+
+    Only a small share of object points are touched by the hand (~5-10 % of the
+    samples in a SynthGRAB interaction window), so an unweighted BCE is minimised early
+    by "nothing is touched": every probability stays below 0.5 and the fit has nothing
+    to fit. Weighting the hits by the class ratio balances the two classes, so the 0.5
+    threshold separates them.
+    """
+    h = torch.as_tensor(hits, dtype=torch.float64)
+    n_hit = float(h.sum())
+    if n_hit == 0:
+        return 1.0
+    return float(min((h.numel() - n_hit) / n_hit, max_weight))
 
 
 def field_losses(
@@ -323,17 +375,21 @@ def field_losses(
     w_hit: float = 1.0,
     w_dist: float = 1.0,
     w_corr: float = 1.0,
+    pos_weight: float = 1.0,
 ):
     """TemporalAE loss: BCE on hits, L1 on distance and canonical point where the target hits.
 
     pred (..., 5) with hit logits; target (..., 5) with hits in {0, 1}; lengths in metres,
-    read in cm (x100) so they weigh like the BCE. Returns ``(total, {term: value})``.
+    read in cm (x100) so they weigh like the BCE. ``pos_weight`` weighs the hit class in
+    the BCE (see :func:`hit_pos_weight`). Returns ``(total, {term: value})``.
     """
     hit = target[..., 0]
     mask = hit > 0.5
     denom = mask.sum().clamp(min=1)
     terms = {
-        "hit": nn.functional.binary_cross_entropy_with_logits(pred[..., 0], hit),
+        "hit": nn.functional.binary_cross_entropy_with_logits(
+            pred[..., 0], hit, pos_weight=pred.new_tensor(float(pos_weight))
+        ),
         "distance": 100.0 * ((pred[..., 1] - target[..., 1]).abs() * mask).sum() / denom,
         "correspondence": 100.0
         * ((pred[..., 2:] - target[..., 2:]).norm(dim=-1) * mask).sum()
@@ -401,6 +457,7 @@ def fit_hand_to_field(
     init_hand_pose: torch.Tensor,
     init_transl: torch.Tensor,
     cfg: FitConfig | None = None,
+    subset_forward: Callable[[np.ndarray], HandForward] | None = None,
 ) -> FitResult:
     """Fit per-frame hand parameters to a correspondence field (TOCH's last stage).
 
@@ -409,6 +466,9 @@ def fit_hand_to_field(
     each canonical correspondence, posed, should land at ``p + distance * n``. Plus a
     smoothness term on pose/translation accelerations and a prior keeping the pose near
     the input. init_* (T, 3), (T, 15, 3), (T, 3) axis-angle / metres. Adam, ``n_iters``.
+    ``subset_forward(ids)``, if given, returns a ``hand_forward`` that poses only the
+    vertices ``ids (K,)`` (``(T, K, 3)``); the fit then skins just the corners of the
+    triangles it anchors to instead of the whole hand at every step.
     """
     cfg = cfg or FitConfig()
     hit = np.asarray(hit, bool)
@@ -423,7 +483,12 @@ def fit_hand_to_field(
     face, bary = _surface_anchors(
         np.asarray(canonical)[t_idx, p_idx], canonical_vertices, hand_faces
     )
-    corners = torch.as_tensor(np.asarray(hand_faces, np.int64)[face])  # (M, 3)
+    corners = np.asarray(hand_faces, np.int64)[face]  # (M, 3) hand vertex ids
+    if subset_forward is not None:
+        needed, corners = np.unique(corners, return_inverse=True)
+        hand_forward = subset_forward(needed)
+        corners = corners.reshape(-1, 3)  # (M, 3) rows of the posed subset
+    corners = torch.as_tensor(corners)
     bary_t = torch.as_tensor(bary, dtype=dtype)
     target_t = torch.as_tensor(target, dtype=dtype)
     frames = torch.as_tensor(t_idx)

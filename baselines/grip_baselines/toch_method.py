@@ -9,18 +9,20 @@ Training: windows of ``window`` frames from the train split that contain an inte
 frame; each window is perturbed with one of GRAB-T (0.01, 0.02 m) and GRAB-R (0.3, 0.5
 rad) in turn, and the network learns noisy field -> ground-truth field. Both hands
 share one network: a left hand's canonical correspondences are mirrored (x -> -x) into
-the right hand's canonical space.
+the right hand's canonical space. Only ~10 % of the object points are touched by the
+hand (a hit), so the hit BCE weighs hits up by the class ratio (``hit_balance``):
+unweighted, the denoiser learns "nothing is touched" and the fit has nothing to fit.
 
 Prediction: only *interaction frames* are refined, the frames where the input hand comes
-within ``interaction_distance`` of the object; they are cut into windows of at most
-``window`` frames. Other frames, and windows whose denoised field has no hit, keep the
-input hand.
+within ``interaction_distance`` of the object. Each run of them is cut into windows of at
+most ``window`` frames for the denoiser, and the hand is then fitted to the denoised
+fields of the whole run at once. Other frames, and runs whose denoised fields have no
+hit, keep the input hand.
 """
 
 from __future__ import annotations
 
 import functools
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,7 +41,14 @@ from grip_bench.constants import (
 from grip_bench.errors import InputError
 
 from . import common as U
-from .toch import FitConfig, TemporalAEConfig, correspondence_field, field_losses, fit_hand_to_field
+from .toch import (
+    FitConfig,
+    TemporalAEConfig,
+    correspondence_field,
+    field_losses,
+    fit_hand_to_field,
+    hit_pos_weight,
+)
 
 PERTURBATIONS = tuple(("T", s) for s in TOCH_T_SIGMAS) + tuple(("R", s) for s in TOCH_R_SIGMAS)
 MIRROR_X = np.array([-1.0, 1.0, 1.0])
@@ -49,17 +58,27 @@ MIRROR_X = np.array([-1.0, 1.0, 1.0])
 class TochTrainConfig:
     """Profile section ``[toch]``."""
 
-    n_points: int = 500  # object surface samples per frame (TOCH: 2000)
-    local_dim: int = 64
-    frame_dim: int = 128
-    gru_hidden: int = 128
+    n_points: int = 256  # object surface samples per frame (TOCH: 2000)
+    local_dim: int = 32
+    frame_dim: int = 64
+    gru_hidden: int = 64
+    skip_dim: int = 32  # per-point temporal skip path (TemporalAEConfig.skip_dim)
+    decoder_hidden: int = 128  # per-point decoder width
     window: int = TOCH_WINDOW
-    epochs: int = 25
+    epochs: int = 8
     batch_size: int = 4  # windows per step
     lr: float = 2e-3
-    max_windows: int = 64  # training windows (each with one perturbation)
+    max_windows: int = 48  # training windows (each with one perturbation)
+    windows_per_hand: int = 1  # at most this many windows per train sequence and hand
+    frame_stride: int = 3  # interaction frames of train hands are tested on every k-th frame
     max_sequences: int = 0  # train files read (0 = all)
-    fit_iters: int = 60
+    # Weight of the hit class in the BCE: (misses / hits) ** hit_balance (1 = balanced
+    # classes, 0 = plain BCE, under which no probability reaches hit_threshold).
+    hit_balance: float = 0.5
+    fit_iters: int = 40
+    # Weight of the fit's smoothness term (squared accelerations; FitConfig.w_smooth). The
+    # perturbations are i.i.d. per frame, so the temporal prior does much of the denoising.
+    fit_smooth: float = 100.0
     interaction_distance: float = TOCH_INTERACTION_DISTANCE
     hit_threshold: float = TOCH_HIT_THRESHOLD  # denoised hit probability that counts as a hit
 
@@ -98,6 +117,11 @@ def interaction_frames(library, seq, side: str, params: dict, dist: float) -> np
     return (U.signed_distance(library, seq, U.seq_vertices(seq, side, params)) <= dist).any(1)
 
 
+def windows_of_run(run: np.ndarray, length: int) -> list[np.ndarray]:
+    """Consecutive frames ``run`` cut into windows of at most ``length`` frames."""
+    return [run[i : i + length] for i in range(0, len(run), length)]
+
+
 def windows_of(mask: np.ndarray, length: int) -> list[np.ndarray]:
     """Runs of True frames cut into consecutive windows of at most ``length`` frames."""
     idx = np.flatnonzero(mask)
@@ -111,24 +135,37 @@ def windows_of(mask: np.ndarray, length: int) -> list[np.ndarray]:
 
 
 def _training_windows(seqs, library, cfg: TochTrainConfig, rng):
-    """(seq, side, start) of windows holding at least one ground-truth interaction frame."""
+    """(seq, side, start) of up to ``max_windows`` windows holding at least one
+    ground-truth interaction frame, at most ``windows_per_hand`` per sequence and hand.
+
+    Hands are visited in random order and only until enough windows are found, and their
+    interaction frames are tested on every ``frame_stride``-th frame: finding the windows
+    of every train sequence costs more than the whole training budget.
+    """
+    pairs = [(seq, side) for seq in seqs if seq.n_frames >= cfg.window for side in U.SIDES]
     out = []
-    for seq in seqs:
-        if seq.n_frames < cfg.window:
-            continue
-        for side in U.SIDES:
-            near = interaction_frames(
-                library, seq, side, seq.hand_params(side), cfg.interaction_distance
-            )
-            for start in range(0, seq.n_frames - cfg.window + 1, max(cfg.window // 2, 1)):
-                if near[start : start + cfg.window].any():
-                    out.append((seq, side, start))
+    for k in rng.permutation(len(pairs)):
+        seq, side = pairs[k]
+        cand = np.arange(0, seq.n_frames, max(cfg.frame_stride, 1))
+        p = seq.hand_params(side)
+        sub = {key: np.asarray(p[key])[cand] for key in ("global_orient", "hand_pose", "transl")}
+        d = U.signed_distance(library, seq, U.seq_vertices(seq, side, sub), cand)
+        near = np.zeros(seq.n_frames, bool)
+        near[cand] = (d <= cfg.interaction_distance).any(1)
+        starts = [
+            a
+            for a in range(0, seq.n_frames - cfg.window + 1, max(cfg.window // 2, 1))
+            if near[a : a + cfg.window].any()
+        ]
+        for j in rng.permutation(len(starts))[: cfg.windows_per_hand or len(starts)]:
+            out.append((seq, side, starts[j]))
+        if cfg.max_windows and len(out) >= cfg.max_windows:
+            break
     if not out:
         raise InputError(
             f"no train window of {cfg.window} frames near an object", "toch training data"
         )
-    pick = rng.permutation(len(out))[: cfg.max_windows or len(out)]
-    return [out[i] for i in pick]
+    return out[: cfg.max_windows or len(out)]
 
 
 def _window_tensors(windows, library, cfg, seed):
@@ -150,6 +187,7 @@ def _window_tensors(windows, library, cfg, seed):
 
 
 def train_toch(name, data_dir, cfg: TochTrainConfig, seed, progress):
+    """The field denoiser; hits weighted by the class ratio of the training targets."""
     from grip_bench.data.library import ObjectLibrary
 
     torch.manual_seed(seed)
@@ -158,19 +196,28 @@ def train_toch(name, data_dir, cfg: TochTrainConfig, seed, progress):
     seqs = U.train_sequences(data_dir, cfg.max_sequences, seed)
     windows = _training_windows(seqs, library, cfg, rng)
     pts, nrm, noisy, clean = _window_tensors(windows, library, cfg, seed)
-    U.log(progress, name, f"{len(windows)} windows of {cfg.window} frames")
+    pos_weight = hit_pos_weight(clean[..., 0]) ** cfg.hit_balance
+    U.log(
+        progress,
+        name,
+        f"{len(windows)} windows of {cfg.window} frames; "
+        f"{float(clean[..., 0].mean()):.1%} of the object points are hits, weighted x{pos_weight:.2f}",
+    )
     net = TemporalAEConfig(
         local_dim=cfg.local_dim,
         frame_dim=cfg.frame_dim,
         gru_hidden=cfg.gru_hidden,
         window=cfg.window,
+        skip_dim=cfg.skip_dim,
+        decoder_hidden=cfg.decoder_hidden,
     ).build()
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     for epoch in range(cfg.epochs):
         net.train()
         total = 0.0
         for idx in U.batches(len(windows), cfg.batch_size, rng):
-            loss = field_losses(net(pts[idx], nrm[idx], noisy[idx]), clean[idx])[0]
+            out = net(pts[idx], nrm[idx], noisy[idx])
+            loss = field_losses(out, clean[idx], pos_weight=pos_weight)[0]
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -182,33 +229,23 @@ def train_toch(name, data_dir, cfg: TochTrainConfig, seed, progress):
 # ----------------------------------------------------------------------------- method
 
 
-class TochMethod:
+class TochMethod(U.TrainedMethod):
     """Denoise correspondence fields over interaction windows, then fit the hands to them."""
 
+    section, config_cls, networks = "toch", TochTrainConfig, {"toch": TemporalAEConfig}
+
     def __init__(self, name: str):
-        self.name = name
+        super().__init__(name)
         self.net = None
         self.cfg = TochTrainConfig()
 
-    def train(
-        self,
-        data_dir: Path,
-        out: Path,
-        *,
-        profile: dict,
-        seed: int = 0,
-        device: str = "cpu",
-        progress: bool = True,
-    ) -> Path:
-        t0 = time.perf_counter()
-        cfg = U.section_config(TochTrainConfig, profile, "toch")
-        net, n = train_toch(self.name, Path(data_dir), cfg, seed, progress)
-        meta = U.train_meta(self.name, Path(data_dir), seed, cfg, t0, n_samples=n)
-        return U.save_models(Path(out), {"toch": net}, meta)
+    def fit(self, data_dir: Path, cfg: TochTrainConfig, seed: int, progress: bool):
+        net, n = train_toch(self.name, data_dir, cfg, seed, progress)
+        return {"toch": net}, {"n_samples": n}
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        ck = U.load_own(checkpoint, {"toch": TemporalAEConfig}, self.name)
-        self.net = ck.models()["toch"]
+        nets, ck = self.load_checkpoint(checkpoint)
+        self.net = nets["toch"]
         self.cfg = TochTrainConfig(**ck.meta["train_config"])
 
     def predict(self, seq, ctx: PredictContext):
@@ -220,16 +257,23 @@ class TochMethod:
         )
 
     def _refine_side(self, seq, library, side: str) -> dict:
+        """Per run of interaction frames: denoise its windows, then fit the run at once
+        (one smoothness term across the window borders, and one optimisation per run
+        instead of one per window)."""
         cfg = self.cfg
         p = {
             k: np.array(seq.hand_params(side)[k], float)
             for k in ("global_orient", "hand_pose", "transl")
         }
         near = interaction_frames(library, seq, side, p, cfg.interaction_distance)
-        for frames in windows_of(near, cfg.window):
-            fit = self._fit_window(seq, library, side, p, frames)
+        for run in windows_of(near, seq.n_frames):
+            fields = [
+                self._denoise(seq, library, side, p, w) for w in windows_of_run(run, cfg.window)
+            ]
+            hit, dist, canon = (np.concatenate(x) for x in zip(*fields, strict=True))
+            fit = self._fit_run(seq, side, p, run, hit, dist, canon, library)
             if fit is not None:
-                p["global_orient"][frames], p["hand_pose"][frames], p["transl"][frames] = fit
+                p["global_orient"][run], p["hand_pose"][run], p["transl"][run] = fit
         return p
 
     def _denoise(self, seq, library, side, p, frames):
@@ -251,10 +295,9 @@ class TochMethod:
         hit = torch.sigmoid(torch.as_tensor(out[..., 0])).numpy() > cfg.hit_threshold
         return hit, out[..., 1], canon
 
-    def _fit_window(self, seq, library, side, p, frames):
-        """Hand params (go (F,3), pose (F,45), transl (F,3)) fitted to the denoised field,
-        or None when the field has no hit."""
-        hit, dist, canon = self._denoise(seq, library, side, p, frames)
+    def _fit_run(self, seq, side, p, frames, hit, dist, canon, library):
+        """Hand params (go (F,3), pose (F,45), transl (F,3)) of ``frames`` fitted to their
+        denoised fields, or None when the fields have no hit."""
         if not hit.any():
             return None
         pts, nrm = _samples(library, seq.obj_name, self.cfg.n_points)
@@ -262,9 +305,14 @@ class TochMethod:
         hand = U.seq_hand(seq, side)
         R, t = (torch.as_tensor(x[frames], dtype=torch.float32) for x in U.object_pose(seq))
 
-        def forward(go, pose, transl):  # world hand -> object frame (F, V, 3)
-            v = hand(go, pose, transl)[0]
-            return torch.einsum("fji,fvj->fvi", R, v - t[:, None])
+        def subset_forward(ids):  # world hand vertices ids -> object frame (F, K, 3)
+            posed = U.SubsetHand(hand, ids)
+
+            def forward(go, pose, transl):
+                v = posed(go, pose, transl)[0]
+                return torch.einsum("fji,fvj->fvi", R, v - t[:, None])
+
+            return forward
 
         f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
         res = fit_hand_to_field(
@@ -273,13 +321,14 @@ class TochMethod:
             hit,
             dist,
             canon,
-            forward,
+            subset_forward(np.arange(hand.num_vertices)),
             hand.template_vertices.double().numpy(),
             np.asarray(hand.faces),
             f32(p["global_orient"][frames]),
             f32(p["hand_pose"][frames]).reshape(F, 15, 3),
             f32(p["transl"][frames]),
-            FitConfig(n_iters=self.cfg.fit_iters),
+            FitConfig(n_iters=self.cfg.fit_iters, w_smooth=self.cfg.fit_smooth),
+            subset_forward=subset_forward,
         )
         return (
             res.global_orient.double().numpy(),
