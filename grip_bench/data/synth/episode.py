@@ -1,7 +1,9 @@
 """One SynthGRAB sequence: a subject reaches for an object on a table, grasps it, acts, puts it back.
 
 The choreography follows GRAB's protocol (rest -> reach -> approach/grasp -> act by
-intent -> put back -> release -> retreat -> rest) and is written as key frames
+intent -> put back -> release -> retreat -> rest; an off-hand pass hands the object from
+the off hand to the dominant one in front of the chest, see :class:`Handover`), keeps
+hands and object out of the table top (:func:`table_clearance`) and is written as key frames
 (:class:`Script`): wrist keys per hand, finger-pose keys per hand, object keys while it
 is carried. :func:`solve` turns the keys into a whole-body motion with torso lean, head
 turn and two-bone arm IK, and derives the object pose from the carrying hand's
@@ -681,7 +683,8 @@ def _offhand(sc: Script, cast: Cast, rng, amp, mid_p) -> None:
     # the dominant hand holds the object still (it is about to go down there), then drops
     # to rest as the object is put back.
     p, R = sc.wrist[N].last
-    back = np.array([p[0], p[1], min(p[2], cast.scene.stage.table_front - 0.19 * cast.subject.hand_scale - 0.05)])
+    edge = cast.scene.stage.table_front - 0.19 * cast.subject.hand_scale - 0.05
+    back = np.array([p[0], p[1], min(p[2], edge)])
     a, b = sc.phase("withdraw_off", 0.45)
     sc.move(N, a, b, back, R, ease="arrive")  # level: lifting it would meet the object
     sc.carry(a, b, *sc.obj.last)
@@ -1107,7 +1110,8 @@ def hand_contact(v: np.ndarray, hand: ProceduralHand, mo: Motion, tools: ObjectT
         labels = hand.part_labels
         parts[near] = np.stack([sd[:, labels == k].min(1) <= C.CONTACT_THRESHOLD
                                 for k in range(len(HAND_PARTS))], 1)[inv]
-        close = {int(k): np.flatnonzero(row <= C.CONTACT_THRESHOLD + 0.001) for k, row in zip(keys, sd, strict=True)}
+        close = {int(k): np.flatnonzero(row <= C.CONTACT_THRESHOLD + 0.001)
+                 for k, row in zip(keys, sd, strict=True)}
     gap = table_clearance(v, scene) if gap is None else gap
     return HandContact(grasp, pen, parts, _min(gap)), v_obj, rep, close
 

@@ -9,8 +9,10 @@ Per candidate hand orientation (batched over candidates):
    until the part of the finger it moves touches the surface (``GAP``) or reaches its
    limit (GraspIt's auto-grasp scheme), found by a coarse sweep and a bisection.
 4. *Score*: thumb plus at least one finger in contact (palm and fingers for bimanual
-   holds), no penetration, clear of the table, and a wrist orientation close to the
-   natural one for a hand coming from the subject.
+   holds), no penetration, clear of the table (closed, pre-shaped and in between), and a
+   wrist orientation close to the natural one for a hand coming from the subject; among
+   valid candidates thumb, index and middle contacts count most, the palm and the little
+   finger least (``PART_SCORE``, after GRAB's contact frequencies).
 
 Everything is in the object's own frame (y up, resting on ``y = -rest_height``).
 """
@@ -125,13 +127,7 @@ def _light_hand(side: str, scale: float) -> tuple[ProceduralHand, np.ndarray, Pr
     keep[full.fingertip_ids] = True
     keep[full.proximity_ids] = True
     ids = np.flatnonzero(keep)
-    sub = copy.deepcopy(full)
-    sub.template_vertices = full.template_vertices[ids].clone()
-    sub.weights = full.weights[ids].clone()
-    remap = {int(v): k for k, v in enumerate(ids)}
-    sub.tip_index = torch.tensor([remap[int(v)] for v in full.fingertip_ids])
-    sub.bone_ids_subset = full.bone_ids[ids]
-    return full, ids, sub
+    return full, ids, _subset_hand(full, ids)
 
 
 def _subset_hand(full: ProceduralHand, ids: np.ndarray) -> ProceduralHand:
@@ -173,8 +169,9 @@ class DistanceBound:
     Node values of the field on a coarse lattice (about 50 cells across the object, 4 mm at
     least, reaching 4 cm around the object's box), read at the nearest node, minus half a
     cell diagonal (distance fields are 1-Lipschitz) and 0.5 mm (twice the grid's trilinear
-    tolerance). A point whose bound exceeds a threshold has a field value above it too, so tests against
-    thresholds (contact, closing gap, penetration) need no field look-up for it.
+    tolerance). A point whose bound exceeds a threshold has a field value above it too, so
+    tests against thresholds (contact, closing gap, penetration) need no field look-up for it.
+    Built once per object (about 0.1 s), shared by the synthesizers of all hand sizes.
     """
 
     def __init__(self, df: DistanceField, mesh, margin: float = 0.04):
