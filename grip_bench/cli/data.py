@@ -195,9 +195,9 @@ def add_synth(sub) -> None:
         "splits.json with held-out objects and families, manifest.json). Prints a quality "
         "report (grasp frames, penetration, per-finger contact frequencies beside GRAB's).",
         epilog="profiles (time on 2 cores):\n"
-        "  smoke     ~20 sequences, about a minute\n"
-        "  default  ~300 sequences, about 10 minutes\n"
-        "  large   ~1300 sequences, about 45 minutes\n"
+        "  smoke     ~20 sequences, under a minute\n"
+        "  default  ~300 sequences, about 3-6 minutes\n"
+        "  large   ~1300 sequences, about 15-25 minutes (estimated)\n"
         "The same --seed gives the same arrays whatever the number of workers.")
     p.add_argument("--out", type=Path, required=True, help="output data folder (created)")
     p.add_argument("--profile", default="smoke", choices=("smoke", "default", "large", "tiny"),
