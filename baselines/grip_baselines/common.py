@@ -265,15 +265,6 @@ def contact_frames(
     return (d <= threshold).any(axis=1)
 
 
-def strided_frames(n_frames: int, stride: int, rng: np.random.Generator | None = None):
-    """Every ``stride``-th frame index of ``n_frames`` from a random phase (0 without
-    ``rng``): training samples of neighbouring frames are near duplicates, so striding
-    keeps their variety at a fraction of the posing and distance cost."""
-    stride = max(int(stride), 1)
-    phase = int(rng.integers(stride)) if (rng is not None and stride > 1) else 0
-    return np.arange(min(phase, max(n_frames - 1, 0)), n_frames, stride)
-
-
 def mirror_pose(aa: np.ndarray) -> np.ndarray:
     """Mirror axis-angles ``(..., 3k)`` between the hands: ``(ax, ay, az) -> (ax, -ay, -az)``."""
     a = np.asarray(aa, float)
