@@ -9,6 +9,7 @@ x-mirror of the right one, so a left hand is brought into the right hand's frame
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import time
@@ -75,13 +76,31 @@ def load_own(checkpoint: Path, expected: dict, name: str):
     return ck
 
 
+@contextlib.contextmanager
+def single_thread():
+    """Run torch on one intra-op thread inside the block (restored after).
+
+    The baselines' networks and batches are small: a second thread gains little, and when
+    the cores are shared with other processes torch's spinning worker threads cost far
+    more than they give (measured on the 2-core benchmark machine under load: the default
+    GrabNet training took 664 s with 2 threads and 53 s with 1).
+    """
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
 class TrainedMethod:
     """Base of the learned baselines: ``train`` is "section config -> fit -> meta -> save".
 
     A subclass sets ``section`` (its profile section), ``config_cls`` (the train-config
     dataclass built from it) and ``networks`` (``{checkpoint key: network config class}``)
     and implements :meth:`fit`, which returns ``({key: network}, extra meta)``; the
-    checkpoint is :func:`save_models` of those networks with :func:`train_meta`.
+    checkpoint is :func:`save_models` of those networks with :func:`train_meta`. ``fit``
+    runs on one torch thread (:func:`single_thread`).
     :meth:`load_checkpoint` reads one back (refusing another method's) and returns the
     networks and the checkpoint.
     """
@@ -108,7 +127,8 @@ class TrainedMethod:
     ) -> Path:
         started = time.perf_counter()
         cfg = section_config(self.config_cls, profile, self.section)
-        models, extra = self.fit(Path(data_dir), cfg, seed, progress)
+        with single_thread():
+            models, extra = self.fit(Path(data_dir), cfg, seed, progress)
         meta = train_meta(self.name, Path(data_dir), seed, cfg, started, **extra)
         return save_models(Path(out), models, meta)
 

@@ -224,13 +224,13 @@ class ManipNetMethod(U.TrainedMethod):
         out = np.zeros((T, 15, 3))
         state = U.seq_hand(seq, "right").named_pose("relaxed").double().numpy()  # (15, 3)
         self.net.eval()
-        for t in range(T):
-            prev[t] = state
-            feats = d.features(prev, [t], self.net.cfg)
-            with torch.no_grad():
+        with U.single_thread(), torch.no_grad():
+            for t in range(T):
+                prev[t] = state
+                feats = d.features(prev, [t], self.net.cfg)
                 pose6 = self.net(*feats)
-            state = rotation_6d_to_axis_angle(pose6.double())[0].numpy()
-            out[t] = state
+                state = rotation_6d_to_axis_angle(pose6.double())[0].numpy()
+                out[t] = state
         return seq.with_hands(right={"hand_pose": out.reshape(T, 45)})
 
 

@@ -252,9 +252,9 @@ class TochMethod(U.TrainedMethod):
         """Both hands refined on their interaction frames; everything else as in the input."""
         if self.net is None:
             raise InputError("load a checkpoint before predicting", self.name)
-        return seq.with_hands(
-            **{side: self._refine_side(seq, ctx.library, side) for side in U.SIDES}
-        )
+        with U.single_thread():
+            new = {side: self._refine_side(seq, ctx.library, side) for side in U.SIDES}
+        return seq.with_hands(**new)
 
     def _refine_side(self, seq, library, side: str) -> dict:
         """Per run of interaction frames: denoise its windows, then fit the run at once
