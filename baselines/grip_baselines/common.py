@@ -9,7 +9,6 @@ x-mirror of the right one, so a left hand is brought into the right hand's frame
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import time
@@ -22,6 +21,7 @@ from scipy.spatial.transform import Rotation
 from grip_bench import constants as C
 from grip_bench.checkpoint import load_checkpoint, save_checkpoint
 from grip_bench.errors import InputError
+from grip_bench.threads import single_thread  # noqa: F401  (U.single_thread in the methods)
 
 SIDES = ("right", "left")
 MIRROR = np.diag([-1.0, 1.0, 1.0])  # right-hand frame <-> left-hand frame
@@ -74,23 +74,6 @@ def load_own(checkpoint: Path, expected: dict, name: str):
     if ck.meta.get("method") != name:
         raise InputError(f"checkpoint of {ck.meta.get('method')!r}, not {name!r}", checkpoint)
     return ck
-
-
-@contextlib.contextmanager
-def single_thread():
-    """Run torch on one intra-op thread inside the block (restored after).
-
-    The baselines' networks and batches are small: a second thread gains little, and when
-    the cores are shared with other processes torch's spinning worker threads cost far
-    more than they give (measured on the 2-core benchmark machine under load: the default
-    GrabNet training took 664 s with 2 threads and 53 s with 1).
-    """
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
 
 
 class TrainedMethod:

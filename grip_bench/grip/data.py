@@ -20,7 +20,6 @@ Whole splits are cached in one ``.npz`` keyed by the dataset hash and the featur
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import hashlib
 import os
@@ -36,6 +35,7 @@ from ..bodies.layouts import SMPLX_INDEX
 from ..errors import InputError
 from ..geometry.rotations import axis_angle_to_matrix, matrix_to_rotation_6d
 from ..sensors import NET_SIDES, ambient_sensor, stage_one, wrist_frames
+from ..threads import single_thread
 
 FEATURE_VERSION = 1  # bump when any per-frame array changes meaning
 ARM_JOINTS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow")
@@ -307,7 +307,7 @@ def build_split(data_dir, split: str, *, cache_dir=None, voxel: bool = False, se
         path = _cache_path(cache_dir, data_hash, split, voxel, seed)
         if path.is_file():
             return _load(path)
-    with _one_thread():
+    with single_thread():
         if voxel:
             base = build_split(data_dir, split, cache_dir=cache_dir, voxel=False, seed=seed,
                                data_hash=data_hash, progress=progress)
@@ -351,16 +351,6 @@ def _add_voxel(base: FrameSet, data_dir: Path, split: str, progress: bool) -> Fr
         raise InputError(f"the {split} split changed while its features were built", data_dir)
     arrays = {f.name: getattr(base, f.name) for f in fields(base) if f.name != "voxel"}
     return FrameSet(**arrays, voxel=np.concatenate(voxels))
-
-
-@contextlib.contextmanager
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _progress(items, desc: str, enabled: bool):
