@@ -1,9 +1,11 @@
-"""Session-wide test settings."""
+"""Session-wide test settings and shared fixtures."""
 
 import atexit
 import os
 import shutil
 import tempfile
+
+import pytest
 
 # Derived object geometry (distance grids, convex pieces, the hand template) is cached on
 # disk (grip_bench.geometry.cache). Tests use a fresh folder per session, so they never read
@@ -12,3 +14,20 @@ if "GRIP_BENCH_CACHE" not in os.environ:
     _cache = tempfile.mkdtemp(prefix="grip-bench-test-cache-")
     os.environ["GRIP_BENCH_CACHE"] = _cache
     atexit.register(shutil.rmtree, _cache, ignore_errors=True)
+
+
+@pytest.fixture
+def one_thread():
+    """Torch on one thread for the test (``pytestmark = pytest.mark.usefixtures("one_thread")``)."""
+    from grip_bench.threads import single_thread
+
+    with single_thread():
+        yield
+
+
+@pytest.fixture(scope="module")
+def hand():
+    """The procedural right hand (modules with their own ``hand`` fixture override it)."""
+    from grip_bench.bodies import ProceduralHand
+
+    return ProceduralHand("right")

@@ -10,20 +10,7 @@ from grip_baselines import bps, grabnet, manipnet, toch
 
 from grip_bench.errors import InputError
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the test machine's 2 cores are shared
-    yield
-    torch.set_num_threads(threads)
-
-
-@pytest.fixture(scope="module")
-def hand():
-    from grip_bench.bodies import ProceduralHand
-
-    return ProceduralHand("right")
+pytestmark = pytest.mark.usefixtures("one_thread")  # the 2 test cores are shared
 
 
 @pytest.fixture(scope="module")

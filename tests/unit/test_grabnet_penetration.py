@@ -14,12 +14,7 @@ from grip_bench.geometry.distance import DistanceField
 RADIUS = 0.04
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the test machine's 2 cores are shared
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # the 2 test cores are shared
 
 
 class _Library:

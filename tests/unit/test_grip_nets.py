@@ -15,12 +15,7 @@ B = 4
 TINY = dict(hidden=32, width=16, latent=8, dropout=0.0)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the test machine's 2 cores are shared
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # the 2 test cores are shared
 
 
 def tiny_cnet(**kw) -> CNetConfig:
