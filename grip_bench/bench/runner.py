@@ -316,6 +316,17 @@ def _data_unit(cfg: RunConfig, units: list[Unit]) -> Unit:
                 inputs)
 
 
+def _table_cells(cfg: RunConfig):
+    """``(column, filters)`` of every cell of the chosen tables."""
+    from .tables import TABLES
+
+    for tid in cfg.tables:
+        spec = TABLES.get(tid)
+        for row in spec.rows:
+            for col in spec.columns:
+                yield col, spec.cell_filters(row, col)
+
+
 def method_needs(cfg: RunConfig) -> dict[str, list[str]]:
     """Per chosen method, the test sets (``none`` + perturbation labels) it predicts on.
 
@@ -323,18 +334,12 @@ def method_needs(cfg: RunConfig) -> dict[str, list[str]]:
     perturbed set when a chosen table reads it there (Table 3 and its ``before`` rows)
     and the profile builds that set.
     """
-    from .tables import TABLES
-
     needs = {m: {CLEAN} for m in cfg.methods}
-    for tid in cfg.tables:
-        spec = TABLES.get(tid)
-        for row in spec.rows:
-            for col in spec.columns:
-                flt = spec.cell_filters(row, col)
-                pert = flt.get("perturbation", CLEAN)
-                for method in (flt.get("method"), (col.before or {}).get("method")):
-                    if method in needs and pert in cfg.perturbations:
-                        needs[method].add(pert)
+    for col, flt in _table_cells(cfg):
+        pert = flt.get("perturbation", CLEAN)
+        for method in (flt.get("method"), (col.before or {}).get("method")):
+            if method in needs and pert in cfg.perturbations:
+                needs[method].add(pert)
     order = [CLEAN, *cfg.perturbations]
     return {m: [p for p in order if p in sets] for m, sets in needs.items()}
 
@@ -413,19 +418,12 @@ def set_metrics(cfg: RunConfig, label: str) -> list[str]:
     costly physics and intersection metrics on sets no table shows them for.
     """
     from ..metrics.registry import METRICS
-    from .tables import TABLES
 
     chosen = list(cfg.settings["metrics"] or METRICS.names())
     if label == CLEAN:
         return sorted(chosen)
-    read = set()
-    for tid in cfg.tables:
-        spec = TABLES.get(tid)
-        for row in spec.rows:
-            for col in spec.columns:
-                flt = spec.cell_filters(row, col)
-                if flt.get("perturbation", CLEAN) == label and flt.get("metric"):
-                    read.add(flt["metric"])
+    read = {flt.get("metric") for _, flt in _table_cells(cfg)
+            if flt.get("perturbation", CLEAN) == label}
     return sorted(m for m in chosen if m in read)
 
 
