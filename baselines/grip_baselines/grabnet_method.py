@@ -535,6 +535,7 @@ register_method(
         needs=("object",),
         tables=("table4_grasp",),
         options={"tied": False},
+        hands=("right",),
     )
 )
 register_method(

@@ -241,5 +241,6 @@ register_method(
         factory=ManipNetMethod,
         needs=("object", "wrists"),
         tables=("table4_grasp",),
+        hands=("right",),
     )
 )

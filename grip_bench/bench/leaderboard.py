@@ -11,7 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +56,14 @@ def _direction(metric: str, registry) -> bool | None:
         else None
 
 
+def unpredicted(df: pd.DataFrame, hands: Mapping[str, Sequence[str]]) -> pd.Series:
+    """Rows of a hand (right / left) that their method does not predict."""
+    side = df["hand"].isin(("right", "left"))
+    allowed = df["method"].map(lambda m: tuple(hands.get(m, ("right", "left"))))
+    return side & pd.Series([h not in a for h, a in zip(df["hand"], allowed, strict=True)],
+                            index=df.index)
+
+
 def _rank_key(lb: pd.DataFrame) -> pd.Series:
     """Best first within a (metric, hand): negate when higher is better; NaN last."""
     sign = lb["higher_is_better"].map(lambda h: -1.0 if h is True else 1.0)
@@ -63,16 +71,21 @@ def _rank_key(lb: pd.DataFrame) -> pd.Series:
 
 
 def leaderboard(results_df: pd.DataFrame, metrics_registry=None, seed: int = BOOTSTRAP_SEED, *,
-                n_boot: int = BOOTSTRAP_N, perturbation: str | None = "none") -> pd.DataFrame:
+                n_boot: int = BOOTSTRAP_N, perturbation: str | None = "none",
+                hands: Mapping[str, Sequence[str]] | None = None) -> pd.DataFrame:
     """Leaderboard frame: :data:`LEADERBOARD_COLUMNS` plus ``n_nan``.
 
     ``results_df`` is a validated results frame (one dataset: the leaderboard does not pool
     datasets for you, pass one at a time). ``perturbation`` selects the clean runs by
-    default; ``None`` keeps all rows. Rows are ordered by metric, hand, then best first.
+    default; ``None`` keeps all rows. ``hands`` maps a method to the hands it predicts
+    (``MethodSpec.hands``): rows of a side it does not predict are dropped, because that
+    hand is the method's input (on the clean split, the ground truth) and would score 0.
+    Rows are ordered by metric, hand, then best first.
     """
     registry = metrics_registry if metrics_registry is not None else default_metric_registry()
     df = results_df if perturbation is None else \
         results_df[results_df["perturbation"] == perturbation]
+    df = df[~unpredicted(df, hands or {})]
     records = []
     for (method, metric, hand), rows in df.groupby(["method", "metric", "hand"], sort=True):
         ci = sequence_ci(rows, n_boot=n_boot, seed=seed)
@@ -136,8 +149,10 @@ def leaderboard_table(lb: pd.DataFrame, metrics_registry=None, title: str = "Lea
         rows.append(Row(label=method, cells=cells, reference=method in reference_methods))
     notes = ("Mean over sequences with a 95% bootstrap interval (resampling sequences within "
              "each object, seeded).",
-             f"Reference rows ({', '.join(reference_methods)}) are never marked best.")
-    return TableData(id="leaderboard", title=title, version=1,
+             f"Reference rows ({', '.join(reference_methods)}) are never marked best.",
+             "– : no value (every sequence NaN, or a hand the method does not predict: "
+             "single-hand models return the other hand as given).")
+    return TableData(id="leaderboard", title=title, version=2,
                      description="every method, metric and hand on the clean test runs",
                      row_header="Method", columns=tuple(columns),
                      rows=tuple(mark_best(rows)), notes=notes)
@@ -151,12 +166,26 @@ def _lb_cell(r, col: Column) -> Cell:
                 filters={"method": r.method, "metric": r.metric, "hand": r.hand})
 
 
+def leaderboard_tables(lb: pd.DataFrame, metrics_registry=None,
+                       title: str = "Leaderboard") -> list[TableData]:
+    """One leaderboard table per hand (right, left, both): each fits a page width."""
+    hands = sorted(set(lb["hand"]), key=lambda h: (_HAND_ORDER.get(h, 9), h))
+    if len(hands) <= 1:
+        return [leaderboard_table(lb, metrics_registry, title)]
+    return [leaderboard_table(lb[lb["hand"] == h], metrics_registry,
+                              f"{title}: {_HAND_TITLES.get(h, h)}") for h in hands]
+
+
+_HAND_TITLES = {"right": "right hand", "left": "left hand", "both": "both hands"}
+
+
 def write_leaderboard_md(lb: pd.DataFrame, path: str | os.PathLike, metrics_registry=None,
                          title: str = "Leaderboard") -> Path:
     from ..report.render import to_markdown
 
-    return atomic_write_text(path, to_markdown(leaderboard_table(lb, metrics_registry, title),
-                                               heading_level=2))
+    parts = [to_markdown(t, heading_level=2)
+             for t in leaderboard_tables(lb, metrics_registry, title)]
+    return atomic_write_text(path, "\n".join(parts))
 
 
 def write_leaderboard_html(lb: pd.DataFrame, path: str | os.PathLike,
@@ -166,6 +195,6 @@ def write_leaderboard_html(lb: pd.DataFrame, path: str | os.PathLike,
     """Self-contained sortable page: the leaderboard, optional paper tables, PNG figures."""
     from ..report.render import html_page, table_html
 
-    data = leaderboard_table(lb, metrics_registry, "Leaderboard")
-    fragments = [table_html(data)] + [table_html(t) for t in extra_tables]
+    fragments = [table_html(t) for t in leaderboard_tables(lb, metrics_registry, "Leaderboard")]
+    fragments += [table_html(t) for t in extra_tables]
     return atomic_write_text(path, html_page(title, fragments, figures))

@@ -71,6 +71,9 @@ class MethodSpec:
     tables: tuple[str, ...] = ()
     trainable: bool = True
     options: dict = field(default_factory=dict)  # passed to the factory (variant switches)
+    # hands the method predicts; any other hand is returned as given (the input), so the
+    # leaderboard leaves its columns empty rather than credit the method with the input
+    hands: tuple[str, ...] = ("right", "left")
 
     def build(self) -> Method:
         return self.factory(name=self.name, **self.options)
@@ -101,3 +104,8 @@ def load_all() -> Registry[MethodSpec]:
     for module in METHOD_MODULES:
         importlib.import_module(module)
     return METHODS
+
+
+def predicted_hands() -> dict[str, tuple[str, ...]]:
+    """{method: hands it predicts} for every registered method (imports the method modules)."""
+    return {name: METHODS.get(name).hands for name in load_all().names()}

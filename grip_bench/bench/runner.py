@@ -62,6 +62,7 @@ bytes.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import os
@@ -79,6 +80,7 @@ import pandas as pd
 
 from .. import constants as C
 from ..errors import InputError
+from ..threads import single_thread
 from .cache import Cache, jsonable, unit_key
 
 STAGES = ("data", "perturb", "train", "predict", "evaluate", "runtime", "report")
@@ -371,18 +373,24 @@ def _train_units(cfg, data: Unit, units: list[Unit]) -> dict[str, Unit | None]:
 
     out: dict[str, Unit | None] = {}
     by_key: dict[str, Unit] = {}
+    leaders: dict[str, str] = {}  # family -> key of its first checkpoint unit
     train_cfg = {k: v for k, v in cfg.profile.items() if k not in ("run", "name")}
     for name in cfg.methods:
         spec = METHODS.get(name)
         if not spec.trainable:
             out[name] = None
             continue
-        inputs = {**_train_identity(spec), "data": data.key, "profile": train_cfg,
+        ident = _train_identity(spec)
+        inputs = {**ident, "data": data.key, "profile": train_cfg,
                   "seed": cfg.seed, "device": cfg.device}
         key = unit_key("checkpoint", inputs)
         if key not in by_key:
+            # variants of one family (same factory, a train_key) share cached features:
+            # the first builds them, the others start after it (run_parallel)
+            family = ident.get("factory")
+            after = leaders.setdefault(family, key) if family else None
             by_key[key] = _add(units, "checkpoint", f"train {name}", inputs, [data.key],
-                               method=name)
+                               method=name, after=None if after == key else after)
         out[name] = by_key[key]
     return out
 
@@ -579,17 +587,114 @@ def execute(st: RunState, unit: Unit, work: Callable[[Path], dict | None]) -> Pa
 
 
 def run_stage(st: RunState, name: str, kind: str, fn: Callable[[RunState, Unit, Path], dict]):
-    """Execute every unit of ``kind`` in plan order with one progress bar; time the stage."""
+    """Execute every unit of ``kind`` with one progress bar; time the stage.
+
+    Training and prediction units run in parallel worker processes when ``--workers`` > 1
+    on the CPU (:func:`run_parallel`); everything else runs here in plan order.
+    """
     t0 = time.perf_counter()
     units = st.plan.of(kind)
-    todo = sum(not st.plan.cached[u.key] for u in units)
+    todo = [u for u in units if not st.plan.cached[u.key]]
     if units:
-        st.log(f"stage {name}: {len(units)} unit(s), {len(units) - todo} cached")
-    for unit in bar(units, name, st.cfg.progress):
-        if not st.plan.cached[unit.key]:
-            st.log(f"  {unit.label}")
-        execute(st, unit, lambda tmp, u=unit: fn(st, u, tmp))
+        st.log(f"stage {name}: {len(units)} unit(s), {len(units) - len(todo)} cached")
+    workers = min(stage_workers(st.cfg), len(todo))
+    if kind in PARALLEL_KINDS and workers > 1:
+        run_parallel(st, name, todo, fn, workers)
+    else:
+        for unit in bar(units, name, st.cfg.progress):
+            if not st.plan.cached[unit.key]:
+                st.log(f"  {unit.label}")
+            execute(st, unit, lambda tmp, u=unit: fn(st, u, tmp))
     st.stage_times[name] = round(time.perf_counter() - t0, 3)
+
+
+# --- parallel units -------------------------------------------------------------------------
+# Training and prediction run single-threaded (grip_bench.threads), so W processes give
+# about W times the throughput of one process with W threads, and a unit's result does not
+# depend on how many run beside it.
+PARALLEL_KINDS = ("checkpoint", "prediction")
+
+
+def stage_workers(cfg: RunConfig) -> int:
+    from ..metrics.aggregate import default_workers
+
+    return 1 if cfg.device != "cpu" else (cfg.workers or default_workers())
+
+
+def _init_unit_worker() -> None:
+    import signal
+
+    import torch
+
+    from .methods import load_all
+
+    torch.set_num_threads(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops its workers itself
+    load_all()  # a spawned process starts with an empty method registry
+
+
+def _unit_task(st: RunState, unit: Unit, fn) -> str:
+    execute(st, unit, lambda tmp: fn(st, unit, tmp))
+    return unit.key
+
+
+def _ready(unit: Unit, pending_keys: set[str]) -> bool:
+    """A unit waits for the unit named in its ``after`` parameter (a shared-cache leader)."""
+    return unit.params.get("after") not in pending_keys
+
+
+def run_parallel(st: RunState, name: str, units: list[Unit], fn, workers: int) -> None:
+    """Run ``units`` in a spawn pool of ``workers`` processes, at most ``workers`` at a time.
+
+    Units are started in plan order, leaders first (a unit with ``after`` waits for that
+    unit: GRIP's variants wait for the first one, which builds the shared sensor features
+    and ANet). On an interrupt or a failure the workers are terminated and their unfinished
+    temp folders removed; finished units stay in the cache.
+    """
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    child = RunState(dataclasses.replace(st.cfg, progress=False), st.cache, st.plan, st.log)
+    leaders = {u.params.get("after") for u in units}
+    pending = sorted(units, key=lambda u: u.key not in leaders)  # stable: plan order otherwise
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                               initializer=_init_unit_worker)
+    running: dict = {}
+    progress = _counter(len(units), name, st.cfg.progress)
+    try:
+        while pending or running:
+            keys = {u.key for u in pending} | {u.key for u in running.values()}
+            for unit in [u for u in pending if _ready(u, keys)][:workers - len(running)]:
+                st.log(f"  {unit.label}")
+                running[pool.submit(_unit_task, child, unit, fn)] = unit
+                pending.remove(unit)
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for fut in done:
+                running.pop(fut)
+                fut.result()  # re-raise a unit's error here
+                progress.update()
+    except BaseException:
+        _stop_workers(pool)
+        st.cache.clean_stale()
+        raise
+    finally:
+        progress.close()
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _counter(total: int, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="unit", leave=False, file=sys.stderr,
+                dynamic_ncols=True, disable=not enabled)
+
+
+def _stop_workers(pool) -> None:
+    """Terminate the pool's processes now (``shutdown`` would wait for running units)."""
+    for proc in list(getattr(pool, "_processes", {}).values()):  # private, but the only handle
+        proc.terminate()
+    for proc in list(getattr(pool, "_processes", {}).values()):
+        proc.join(timeout=10)
 
 
 # --- stage: data ----------------------------------------------------------------------------
@@ -670,7 +775,8 @@ def train_method(st: RunState, unit: Unit, tmp: Path) -> dict:
     # of the data (keyed by its hash) instead of rebuilding them in each work folder
     code = _package_digest("grip_bench.grip") + _package_digest("grip_bench")  # + sensors.py
     features = st.cache.root / "features" / hashlib.sha256(code.encode()).hexdigest()[:16]
-    with _env(FEATURE_CACHE_ENV, os.environ.get(FEATURE_CACHE_ENV) or str(features)):
+    with _env(FEATURE_CACHE_ENV, os.environ.get(FEATURE_CACHE_ENV) or str(features)), \
+            single_thread():  # the same floating-point path in a worker and in-process
         path = Path(method.train(st.data_dir(unit.deps[0]), work / "model.ckpt",
                                  profile=st.cfg.profile, seed=st.cfg.seed, device=st.cfg.device,
                                  progress=st.cfg.progress))
@@ -738,8 +844,9 @@ def predict_set(st: RunState, unit: Unit, tmp: Path) -> dict:
     in_dir = st.data_dir(p["input"])
     ctx = _predict_context(st, in_dir, p["perturbation"])
     files = sequences_in_split(in_dir, MAIN_SPLIT)
-    for path in bar(files, p["method"], st.cfg.progress, unit="seq"):
-        write_grab(method.predict(read_grab(path), ctx), tmp / path.relative_to(in_dir))
+    with single_thread():  # the same floating-point path in a worker and in-process
+        for path in bar(files, p["method"], st.cfg.progress, unit="seq"):
+            write_grab(method.predict(read_grab(path), ctx), tmp / path.relative_to(in_dir))
     _copy_dataset_files(in_dir, tmp)
     return {"sequences": len(files)}
 
@@ -975,12 +1082,16 @@ def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
         write_leaderboard_md,
     )
 
+    from .methods import predicted_hands
+
     main = results[results["split"] == options.get("split", MAIN_SPLIT)]
     datasets = sorted(main["dataset"].unique()) or [None]
+    hands = predicted_hands()
     written = []
     for ds in datasets:
         df = main if ds is None else main[main["dataset"] == ds]
-        lb = leaderboard(df, seed=options["bootstrap_seed"], n_boot=options["bootstrap_n"])
+        lb = leaderboard(df, seed=options["bootstrap_seed"], n_boot=options["bootstrap_n"],
+                         hands=hands)
         stem = "leaderboard" if len(datasets) == 1 else f"leaderboard.{ds}"
         written += [write_leaderboard_csv(lb, out / f"{stem}.csv"),
                     write_leaderboard_md(lb, out / f"{stem}.md")]

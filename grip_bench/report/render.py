@@ -113,7 +113,11 @@ def sections(rows: Sequence[Row]) -> list[tuple[Row | None, list[Row]]]:
 
 
 def footnotes(data: TableData) -> tuple[dict[tuple[int, int], int], list[str]]:
-    """Numbered footnotes for cells with NaN sequences: {(row, col): number}, texts."""
+    """Numbered footnotes for cells with NaN sequences: {(row, col): number}, texts.
+
+    Cells with the same counts share one number (a right-hand-only leaderboard would
+    otherwise carry a footnote per cell); the mark on each cell says which count applies.
+    """
     marks: dict[tuple[int, int], int] = {}
     texts: list[str] = []
     for i, row in enumerate(data.rows):
@@ -124,9 +128,10 @@ def footnotes(data: TableData) -> tuple[dict[tuple[int, int], int], list[str]]:
                     parts.append(f"{name}{ci.n_nan} of {ci.n + ci.n_nan} sequences gave NaN "
                                  "and are excluded")
             if parts:
-                marks[(i, j)] = len(texts) + 1
-                texts.append(f"{row.label}, {flat_header(data.columns[j])}: "
-                             + "; ".join(parts) + ".")
+                text = "; ".join(parts) + "."
+                if text not in texts:
+                    texts.append(text)
+                marks[(i, j)] = texts.index(text) + 1
     return marks, texts
 
 

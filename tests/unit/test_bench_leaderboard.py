@@ -61,6 +61,26 @@ def test_nan_counted_and_perturbation_filter():
     assert (leaderboard(df, n_boot=50, perturbation=None)["n_nan"] == 0).all()
 
 
+def test_hands_a_method_does_not_predict_are_left_out():
+    df = synthetic_results()  # both hands for every method
+    methods = sorted(df["method"].unique())
+    one = methods[0]
+    lb = leaderboard(df, n_boot=20, hands={one: ("right",)})
+    mine = lb[lb["method"] == one]
+    assert set(mine["hand"]) == {"right"} and len(mine) == 2  # 2 metrics, right hand only
+    others = lb[lb["method"] != one]
+    assert set(others["hand"]) == {"right", "left"}  # methods not in the map keep both
+    assert len(leaderboard(df, n_boot=20)) == len(lb) + 2
+
+
+def test_registered_single_hand_models():
+    from grip_bench.bench.methods import predicted_hands
+
+    hands = predicted_hands()
+    assert hands["grabnet"] == ("right",) and hands["manipnet"] == ("right",)
+    assert hands["grip"] == ("right", "left") and hands["grabnet-smplx"] == ("right", "left")
+
+
 def test_unit_mismatch_with_registry_is_an_error():
     df = _rows([("a", "s", "o", "mpvpe", 0.005, "m")])
     with pytest.raises(InputError, match="registered in 'mm'"):

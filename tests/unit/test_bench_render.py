@@ -79,7 +79,7 @@ def test_missing_cells_and_nan_footnotes():
     md = render_table("table4_future", df, "md", n_boot=20)
     assert "| 0 | 9.21 [9.21, 9.21]¹ | 8.18" in md
     assert "| 3 | 8.94 [8.94, 8.94] | – |" in md
-    assert "¹ 0, MPVPE R-Hand (mm) ↓: 1 of 3 sequences gave NaN and are excluded." in md
+    assert "¹ 1 of 3 sequences gave NaN and are excluded." in md
 
 
 def test_direction_and_reference_rows():
