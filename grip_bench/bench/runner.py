@@ -1081,7 +1081,6 @@ def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
         write_leaderboard_html,
         write_leaderboard_md,
     )
-
     from .methods import predicted_hands
 
     main = results[results["split"] == options.get("split", MAIN_SPLIT)]
