@@ -173,7 +173,7 @@ RNET_POSE_SIGMA = 0.3  # rad; Gaussian axis-angle noise of RNet's synthetic data
 
 # --- evaluate ---
 # grip_bench.metrics.evaluate: per-sequence aggregation of the metric functions.
-EVAL_MAX_PHYSICS_FRAMES = 12  # MuJoCo tests per sequence and hand (evenly spaced grasp frames);
+EVAL_MAX_PHYSICS_FRAMES = 8  # MuJoCo tests per sequence and hand (evenly spaced grasp frames);
 # each costs ~30-50 ms (paper protocol) plus a 1 s hold, so all grasp frames would dominate the run
 EVAL_EXACT_BAND = 0.005  # m; grid distances below this (contact, CC, penetration) are recomputed
 # exactly, so every threshold decision (4.5 mm, 2 mm, inside) is made on exact distances

@@ -53,14 +53,16 @@ class FixedMethod:
         return np.broadcast_to(relaxed, (T, 45)).copy()
 
 
-for _name, _pose, _desc, _tables, _needs in (
-    ("gt", None, "ground truth hands (metric sanity row)", ("table4_grasp", "physics"), ()),
+for _name, _pose, _desc, _tables, _needs, _clean in (
+    ("gt", None, "ground truth hands (metric sanity row)", ("table4_grasp", "physics"), (),
+     True),
     ("perturbed-input", None, "the perturbed input hands unchanged (Table 3 'before')",
-     ("table3_perturbation",), ("noisy_hands",)),
-    ("flat-input", "flat", "input wrists with flat fingers (what GRIP upgrades)", (), ("wrists",)),
-    ("mean-pose", "relaxed", "input wrists with GRIP's relaxed mean hand", (), ("wrists",)),
+     ("table3_perturbation",), ("noisy_hands",), False),  # on clean data it is gt again
+    ("flat-input", "flat", "input wrists with flat fingers (what GRIP upgrades)", (), ("wrists",),
+     True),
+    ("mean-pose", "relaxed", "input wrists with GRIP's relaxed mean hand", (), ("wrists",), True),
 ):
     register_method(MethodSpec(
         name=_name, description=_desc, factory=FixedMethod, needs=_needs, tables=_tables,
-        trainable=False, options={"finger_pose": _pose},
+        trainable=False, options={"finger_pose": _pose}, clean=_clean,
     ))

@@ -74,6 +74,9 @@ class MethodSpec:
     # hands the method predicts; any other hand is returned as given (the input), so the
     # leaderboard leaves its columns empty rather than credit the method with the input
     hands: tuple[str, ...] = ("right", "left")
+    # whether it runs on the clean test split (the leaderboard); perturbed-input does not:
+    # on clean data it is the ground truth again
+    clean: bool = True
 
     def build(self) -> Method:
         return self.factory(name=self.name, **self.options)

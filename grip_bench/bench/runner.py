@@ -94,7 +94,7 @@ _PERTURBATION_RE = re.compile(r"^(T|R)(\d+(?:\.\d+)?)$")
 RUN_KEYS = ("data", "synth_profile", "data_seed", "dataset", "tables", "methods",
             "extra_methods", "perturbations", "perturb_seed", "seed", "metrics", "per_frame",
             "device", "bootstrap_seed", "bootstrap_n", "runtime_sequences", "runtime_repeats",
-            "figure_methods")
+            "figure_methods", "physics_frames")
 
 
 # --- profiles -------------------------------------------------------------------------------
@@ -118,8 +118,8 @@ def run_settings(profile: dict, where) -> dict:
         raise InputError(f"[run] lacks {', '.join(missing)}", where=where)
     if s["data"] not in ("synth", "grab"):
         raise InputError("[run] data must be 'synth' or 'grab'", where=f"{where}: run.data")
-    for key in ("runtime_sequences", "runtime_repeats", "bootstrap_n"):
-        if s[key] < (0 if key == "runtime_sequences" else 1):
+    for key in ("runtime_sequences", "runtime_repeats", "bootstrap_n", "physics_frames"):
+        if s[key] < (0 if key in ("runtime_sequences", "physics_frames") else 1):
             raise InputError(f"[run] {key} is too small: {s[key]}", where=f"{where}: run.{key}")
     for label in s["perturbations"]:
         parse_perturbation(label)
@@ -332,11 +332,13 @@ def _table_cells(cfg: RunConfig):
 def method_needs(cfg: RunConfig) -> dict[str, list[str]]:
     """Per chosen method, the test sets (``none`` + perturbation labels) it predicts on.
 
-    Every method runs on the clean test split (leaderboard); a method also runs on a
-    perturbed set when a chosen table reads it there (Table 3 and its ``before`` rows)
-    and the profile builds that set.
+    Every method runs on the clean test split (leaderboard) unless its spec says
+    ``clean=False``; a method also runs on a perturbed set when a chosen table reads it
+    there (Table 3 and its ``before`` rows) and the profile builds that set.
     """
-    needs = {m: {CLEAN} for m in cfg.methods}
+    from .methods import METHODS
+
+    needs = {m: {CLEAN} if METHODS.get(m).clean else set() for m in cfg.methods}
     for col, flt in _table_cells(cfg):
         pert = flt.get("perturbation", CLEAN)
         for method in (flt.get("method"), (col.before or {}).get("method")):
@@ -867,7 +869,8 @@ def eval_options(cfg: RunConfig):
     """Evaluation options of the run (metrics.evaluate.EvalOptions); part of the metric keys."""
     from ..metrics.evaluate import EvalOptions
 
-    return EvalOptions(model_path=cfg.model_path, up=world_up(cfg))
+    return EvalOptions(model_path=cfg.model_path, up=world_up(cfg),
+                       max_physics_frames=int(cfg.settings["physics_frames"]))
 
 
 def evaluate_set(st: RunState, unit: Unit, tmp: Path) -> dict:
