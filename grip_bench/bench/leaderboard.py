@@ -151,7 +151,9 @@ def leaderboard_table(lb: pd.DataFrame, metrics_registry=None, title: str = "Lea
              "each object, seeded).",
              f"Reference rows ({', '.join(reference_methods)}) are never marked best.",
              "– : no value (every sequence NaN, or a hand the method does not predict: "
-             "single-hand models return the other hand as given).")
+             "single-hand models return the other hand as given).",
+             "GRIP's ablation variants are compared in Tables 2 and 4 (right) and the physics "
+             "table, on those tables' metrics.")
     return TableData(id="leaderboard", title=title, version=2,
                      description="every method, metric and hand on the clean test runs",
                      row_header="Method", columns=tuple(columns),

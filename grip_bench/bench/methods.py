@@ -77,6 +77,9 @@ class MethodSpec:
     # whether it runs on the clean test split (the leaderboard); perturbed-input does not:
     # on clean data it is the ground truth again
     clean: bool = True
+    # the method this one is an ablation of ("grip" for GRIP's variants): a variant is
+    # compared in its tables (on their metrics), not on the leaderboard
+    variant_of: str | None = None
 
     def build(self) -> Method:
         return self.factory(name=self.name, **self.options)
@@ -107,6 +110,11 @@ def load_all() -> Registry[MethodSpec]:
     for module in METHOD_MODULES:
         importlib.import_module(module)
     return METHODS
+
+
+def variants() -> set[str]:
+    """Names of the registered methods that are ablation variants of another."""
+    return {name for name in load_all().names() if METHODS.get(name).variant_of}
 
 
 def predicted_hands() -> dict[str, tuple[str, ...]]:

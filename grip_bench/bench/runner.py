@@ -94,7 +94,7 @@ _PERTURBATION_RE = re.compile(r"^(T|R)(\d+(?:\.\d+)?)$")
 RUN_KEYS = ("data", "synth_profile", "data_seed", "dataset", "tables", "methods",
             "extra_methods", "perturbations", "perturb_seed", "seed", "metrics", "per_frame",
             "device", "bootstrap_seed", "bootstrap_n", "runtime_sequences", "runtime_repeats",
-            "figure_methods", "physics_frames")
+            "figure_methods", "physics_frames", "iv_frames")
 
 
 # --- profiles -------------------------------------------------------------------------------
@@ -118,8 +118,9 @@ def run_settings(profile: dict, where) -> dict:
         raise InputError(f"[run] lacks {', '.join(missing)}", where=where)
     if s["data"] not in ("synth", "grab"):
         raise InputError("[run] data must be 'synth' or 'grab'", where=f"{where}: run.data")
-    for key in ("runtime_sequences", "runtime_repeats", "bootstrap_n", "physics_frames"):
-        if s[key] < (0 if key in ("runtime_sequences", "physics_frames") else 1):
+    for key in ("runtime_sequences", "runtime_repeats", "bootstrap_n", "physics_frames",
+                "iv_frames"):
+        if s[key] < (0 if key in ("runtime_sequences", "physics_frames", "iv_frames") else 1):
             raise InputError(f"[run] {key} is too small: {s[key]}", where=f"{where}: run.{key}")
     for label in s["perturbations"]:
         parse_perturbation(label)
@@ -420,27 +421,31 @@ def world_up(cfg: RunConfig) -> tuple[float, float, float]:
     return tuple(float(x) for x in C.UP) if procedural else (0.0, 0.0, 1.0)
 
 
-def set_metrics(cfg: RunConfig, label: str) -> list[str]:
-    """Metric ids evaluated on test set ``label``, sorted.
+def set_metrics(cfg: RunConfig, label: str, method: str | None = None) -> list[str]:
+    """Metric ids evaluated on test set ``label`` (for ``method``), sorted.
 
-    The clean set gets every chosen metric (the leaderboard shows them all); a perturbed
-    set only those a chosen table reads on it (Table 3: MPVPE, MPJPE), which spares the
-    costly physics and intersection metrics on sets no table shows them for.
+    The clean set gets every chosen metric (the leaderboard shows them all), except for
+    an ablation variant (``MethodSpec.variant_of``), which is compared only in its tables;
+    a perturbed set gets only those a chosen table reads on it (Table 3: MPVPE, MPJPE).
+    This spares the costly physics and intersection metrics where no table shows them.
     """
     from ..metrics.registry import METRICS
+    from .methods import METHODS
 
     chosen = list(cfg.settings["metrics"] or METRICS.names())
-    if label == CLEAN:
+    variant = method is not None and method in METHODS and METHODS.get(method).variant_of
+    if label == CLEAN and not variant:
         return sorted(chosen)
     read = {flt.get("metric") for _, flt in _table_cells(cfg)
-            if flt.get("perturbation", CLEAN) == label}
+            if flt.get("perturbation", CLEAN) == label
+            and (not variant or flt.get("method") == method)}
     return sorted(m for m in chosen if m in read)
 
 
-def _metric_inputs(cfg: RunConfig, label: str = CLEAN) -> dict:
+def _metric_inputs(cfg: RunConfig, label: str = CLEAN, method: str | None = None) -> dict:
     from ..metrics.registry import METRICS
 
-    chosen = set_metrics(cfg, label)
+    chosen = set_metrics(cfg, label, method)
     versions = {m: METRICS.get(m).version for m in chosen}
     return {"metrics": chosen, "versions": versions, "per_frame": cfg.settings["per_frame"],
             "options": asdict(eval_options(cfg)), "code": _package_digest("grip_bench.metrics")}
@@ -449,7 +454,6 @@ def _metric_inputs(cfg: RunConfig, label: str = CLEAN) -> dict:
 def _predict_eval_units(cfg, plan_units, data, sets, ckpts, dataset) -> None:
     from .methods import METHODS
 
-    metric_inputs = {label: _metric_inputs(cfg, label) for label in (CLEAN, *cfg.perturbations)}
     for name, labels in method_needs(cfg).items():
         spec = METHODS.get(name)
         ckpt = ckpts[name]
@@ -465,7 +469,8 @@ def _predict_eval_units(cfg, plan_units, data, sets, ckpts, dataset) -> None:
             labels_ = {"method": name, "dataset": dataset, "split": MAIN_SPLIT,
                        "perturbation": label}
             _add(plan_units, "metrics", f"evaluate {name} @ {label}",
-                 {**metric_inputs[label], "prediction": pred.key, "gt": data.key, "labels": labels_},
+                 {**_metric_inputs(cfg, label, name), "prediction": pred.key, "gt": data.key,
+                  "labels": labels_},
                  [pred.key, data.key], prediction=pred.key, gt=data.key, labels=labels_)
 
 
@@ -870,7 +875,8 @@ def eval_options(cfg: RunConfig):
     from ..metrics.evaluate import EvalOptions
 
     return EvalOptions(model_path=cfg.model_path, up=world_up(cfg),
-                       max_physics_frames=int(cfg.settings["physics_frames"]))
+                       max_physics_frames=int(cfg.settings["physics_frames"]),
+                       max_iv_frames=int(cfg.settings["iv_frames"]))
 
 
 def evaluate_set(st: RunState, unit: Unit, tmp: Path) -> dict:
@@ -1084,9 +1090,10 @@ def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
         write_leaderboard_html,
         write_leaderboard_md,
     )
-    from .methods import predicted_hands
+    from .methods import predicted_hands, variants
 
     main = results[results["split"] == options.get("split", MAIN_SPLIT)]
+    main = main[~main["method"].isin(variants())]  # ablations: in their own tables
     datasets = sorted(main["dataset"].unique()) or [None]
     hands = predicted_hands()
     written = []

@@ -54,6 +54,9 @@ def register(sub) -> None:
                    "(default test)")
     p.add_argument("--max-physics-frames", type=int, default=EVAL_MAX_PHYSICS_FRAMES, metavar="K",
                    help=f"MuJoCo tests per sequence and hand (default {EVAL_MAX_PHYSICS_FRAMES})")
+    p.add_argument("--max-iv-frames", type=int, default=0, metavar="K",
+                   help="exact intersection volumes on at most K evenly spaced grasp frames per "
+                        "sequence and hand (default 0: every grasp frame)")
     p.add_argument("--up", choices=("y", "z"), default="y",
                    help="world up axis for gravity: y (SynthGRAB, default) or z (real GRAB)")
     p.add_argument("--model-path", help="MANO/SMPL-X model folder (for body_model smplx data)")
@@ -83,11 +86,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"should be >= 1, got {args.workers}", "--workers")
     if args.max_physics_frames < 0:
         raise InputError(f"should be >= 0, got {args.max_physics_frames}", "--max-physics-frames")
+    if args.max_iv_frames < 0:
+        raise InputError(f"should be >= 0, got {args.max_iv_frames}", "--max-iv-frames")
     for flag, d in (("--pred", args.pred), ("--gt", args.gt)):
         if not d.is_dir():
             raise InputError("not a folder", f"{flag} {d}")
     up = (0.0, 1.0, 0.0) if args.up == "y" else (0.0, 0.0, 1.0)
-    options = EvalOptions(max_physics_frames=args.max_physics_frames, model_path=args.model_path, up=up)
+    options = EvalOptions(max_physics_frames=args.max_physics_frames,
+                          max_iv_frames=args.max_iv_frames, model_path=args.model_path, up=up)
     method = args.method or args.pred.resolve().name
     info = evaluate_dirs(args.pred, args.gt, args.out, method=method, metrics=_metric_list(args.metrics),
                          per_frame=args.per_frame, workers=args.workers, split=args.split,

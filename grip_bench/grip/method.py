@@ -92,4 +92,5 @@ VARIANTS = {
 
 for _name, (_desc, _opts, _tables) in VARIANTS.items():
     register_method(MethodSpec(name=_name, description=_desc, factory=GripMethod, needs=NEEDS,
-                               tables=_tables, trainable=True, options=_opts))
+                               tables=_tables, trainable=True, options=_opts,
+                               variant_of=None if _name == "grip" else "grip"))

@@ -297,6 +297,9 @@ def _summary(labels, options, pred_dir, gt_dir, pred_manifest, results, ignored)
         "options": {**asdict(options), "metric_ids": options.metric_ids()},
         "physics_subsampling": f"MuJoCo tests on at most {options.max_physics_frames} evenly "
                                "spaced grasp frames per sequence and hand",
+        "iv_subsampling": (f"exact intersection volume on at most {options.max_iv_frames} evenly "
+                           "spaced grasp frames per sequence and hand" if options.max_iv_frames
+                           else "exact intersection volume on every grasp frame"),
         "n_sequences": len(results), "ignored_predictions_other_split": ignored,
         "failures": {"count": sum(failures.values()), "reasons": dict(sorted(failures.items()))},
     }

@@ -54,6 +54,7 @@ bootstrap_n = 200
 runtime_sequences = 1
 runtime_repeats = 2
 physics_frames = 4
+iv_frames = 0
 figure_methods = ["mean-pose"]
 """
 
@@ -328,8 +329,12 @@ def test_smoke_profile_end_to_end(tmp_path, capsys):
     for name in ("contact_heatmaps", "penetration_cdf", "per_object_mpvpe", "per_object_iv"):
         assert (out / "figures" / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     board = _csv(out / "leaderboard.csv")
+    from grip_bench.bench.methods import variants
+
     assert {r["method"] for r in board} == {r["method"] for r in rows
-                                            if r["perturbation"] == "none"}
+                                            if r["perturbation"] == "none"} - variants()
+    assert "grip" in {r["method"] for r in board} and "grip-no-ambient" not in methods - {
+        r["method"] for r in rows if r["metric"] == "mpvpe"}
     assert "perturbed-input" not in {r["method"] for r in board}  # gt again on clean data
     # single-hand models have no left-hand rows: that hand is their input, not a prediction
     assert {r["hand"] for r in board if r["method"] == "grabnet"} == {"right"}

@@ -122,6 +122,22 @@ def test_iv_early_out_equals_the_boolean(data):
     np.testing.assert_array_equal(fast, full)
 
 
+def test_iv_on_a_sample_of_grasp_frames(data):
+    """max_iv_frames=k: the exact volumes of k evenly spaced grasp frames, nothing else."""
+    lib, seqs = data
+    gt = seqs["cylindermedium"]
+    pred = gt.copy()
+    pred.rhand["transl"] = gt.rhand["transl"] + [0.0, -0.006, 0.0]  # pushed down: volume
+    full = E.m_iv(E.SequencePair(pred, gt, lib, FAST, I.FailureCounter()), "right")
+    opts = E.EvalOptions(physics=False, max_iv_frames=3)
+    some = E.m_iv(E.SequencePair(pred, gt, lib, opts, I.FailureCounter()), "right")
+    assert len(full.frames) > 3 and len(some.frames) == 3
+    assert set(some.frames) <= set(full.frames)
+    assert some.frames[0] == full.frames[0] and some.frames[-1] == full.frames[-1]
+    lookup = dict(zip(full.frames.tolist(), full.values.tolist(), strict=True))
+    np.testing.assert_array_equal(some.values, [lookup[t] for t in some.frames.tolist()])
+
+
 def test_warped_hand_manifolds_match_fresh_builds(data):
     lib, seqs = data
     gt = seqs["cylindermedium"]
