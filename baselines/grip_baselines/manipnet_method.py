@@ -242,5 +242,6 @@ register_method(
         needs=("object", "wrists"),
         tables=("table4_grasp",),
         hands=("right",),
+        predict_cost=3.0,  # autoregressive: one network call per frame
     )
 )

@@ -64,5 +64,5 @@ for _name, _pose, _desc, _tables, _needs, _clean in (
 ):
     register_method(MethodSpec(
         name=_name, description=_desc, factory=FixedMethod, needs=_needs, tables=_tables,
-        trainable=False, options={"finger_pose": _pose}, clean=_clean,
+        trainable=False, options={"finger_pose": _pose}, clean=_clean, predict_cost=0.1,
     ))

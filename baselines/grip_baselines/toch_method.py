@@ -344,5 +344,6 @@ register_method(
         factory=TochMethod,
         needs=("object", "noisy_hands"),
         tables=("table3_perturbation",),
+        predict_cost=6.0,  # ray casting and a hand fit per run of interaction frames
     )
 )

@@ -80,6 +80,9 @@ class MethodSpec:
     # the method this one is an ablation of ("grip" for GRIP's variants): a variant is
     # compared in its tables (on their metrics), not on the leaderboard
     variant_of: str | None = None
+    # rough prediction time per sequence relative to GRIP (1.0); `run` starts the slowest
+    # prediction units first so that no long unit is left alone at the end of the stage
+    predict_cost: float = 1.0
 
     def build(self) -> Method:
         return self.factory(name=self.name, **self.options)

@@ -653,17 +653,20 @@ def _ready(unit: Unit, pending_keys: set[str]) -> bool:
 def run_parallel(st: RunState, name: str, units: list[Unit], fn, workers: int) -> None:
     """Run ``units`` in a spawn pool of ``workers`` processes, at most ``workers`` at a time.
 
-    Units are started in plan order, leaders first (a unit with ``after`` waits for that
-    unit: GRIP's variants wait for the first one, which builds the shared sensor features
-    and ANet). On an interrupt or a failure the workers are terminated and their unfinished
+    Units are started leaders first (a unit with ``after`` waits for that unit: GRIP's
+    variants wait for the first one, which builds the shared sensor features and ANet),
+    then the costliest predictions (``MethodSpec.predict_cost``), otherwise in plan order,
+    so that the stage does not end with one long unit on one worker. On an interrupt or a failure the workers are terminated and their unfinished
     temp folders removed; finished units stay in the cache.
     """
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     child = RunState(dataclasses.replace(st.cfg, progress=False), st.cache, st.plan, st.log)
+    from .methods import METHODS
+
     leaders = {u.params.get("after") for u in units}
-    pending = sorted(units, key=lambda u: u.key not in leaders)  # stable: plan order otherwise
+    pending = sorted(units, key=lambda u: (u.key not in leaders, -_predict_cost(u, METHODS)))
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
                                initializer=_init_unit_worker)
     running: dict = {}
@@ -694,6 +697,13 @@ def _counter(total: int, desc: str, enabled: bool):
 
     return tqdm(total=total, desc=desc, unit="unit", leave=False, file=sys.stderr,
                 dynamic_ncols=True, disable=not enabled)
+
+
+def _predict_cost(unit: Unit, methods) -> float:
+    name = unit.params.get("method")
+    if unit.kind != "prediction" or name not in methods:
+        return 0.0
+    return methods.get(name).predict_cost
 
 
 def _stop_workers(pool) -> None:

@@ -196,6 +196,23 @@ def test_grip_variants_train_after_the_first(tmp_path):
     assert others and all(u.params["after"] is None for u in others)
 
 
+def test_slowest_predictions_start_first(tmp_path):
+    from grip_bench.bench.cache import Cache
+    from grip_bench.bench.methods import METHODS
+    from grip_bench.bench.runner import _predict_cost, build_plan, make_config
+
+    cfg = make_config("smoke", out=tmp_path)
+    preds = build_plan(cfg, Cache(tmp_path / "cache")).of("prediction")
+    order = sorted(preds, key=lambda u: -_predict_cost(u, METHODS))
+    assert {u.params["method"] for u in order[:5]} == {"toch"}  # its 5 sets, the costliest
+    costs = [_predict_cost(u, METHODS) for u in order]
+    assert costs == sorted(costs, reverse=True) and costs[-1] < costs[0]
+    rank = {u.key: i for i, u in enumerate(preds)}
+    for a, b in zip(order, order[1:], strict=False):  # equal costs keep the plan order
+        if _predict_cost(a, METHODS) == _predict_cost(b, METHODS):
+            assert rank[a.key] < rank[b.key]
+
+
 # --- report ----------------------------------------------------------------------------------
 def _report_files(out: Path) -> dict[str, bytes]:
     files = [*(out / "tables").glob("*"), *out.glob("leaderboard.*")]
