@@ -1013,12 +1013,15 @@ def assemble_figure_data(st: RunState) -> None:
         path = st.unit_dir(u.key) / CONTACT_STATS_FILE
         if labels["perturbation"] == CLEAN and labels["split"] == MAIN_SPLIT and path.is_file():
             stats.setdefault(labels["method"], read_npz(path))
+    from .methods import predicted_hands
+
     methods = [m for m in figure_methods(st.cfg.settings) if m in stats]
+    hands = predicted_hands()  # a hand the method returns as given is not its contact
     freqs: dict[str, dict] = {}
     for m in methods:
         freqs[m] = {}
         for side in SIDES:
-            if f"{side}_counts" not in stats[m]:
+            if f"{side}_counts" not in stats[m] or side not in hands.get(m, SIDES):
                 continue
             counts, n = stats[m][f"{side}_counts"], int(stats[m][f"{side}_frames"][0])
             freqs[m][side] = counts / n if n else np.full(counts.shape, np.nan)
@@ -1028,7 +1031,8 @@ def assemble_figure_data(st: RunState) -> None:
     elif (figs / HEATMAP_DATA).exists():
         (figs / HEATMAP_DATA).unlink()
     if methods:
-        depths = [np.concatenate([stats[m].get(f"{side}_depths", np.zeros(0)) for side in SIDES])
+        depths = [np.concatenate([stats[m].get(f"{side}_depths", np.zeros(0)) for side in SIDES
+                                  if side in hands.get(m, SIDES)])
                   for m in methods]
         write_npz(figs / DEPTH_DATA, {
             "format": np.array([DEPTH_FORMAT], np.int64), "methods": np.array(methods, dtype=str),
@@ -1075,9 +1079,14 @@ def write_figures(out: Path, results: pd.DataFrame, options: dict) -> list[Path]
     main = results[(results["split"] == options.get("split", MAIN_SPLIT))
                    & (results["perturbation"] == CLEAN)]
     for metric in BAR_METRICS:
-        if (main["metric"] == metric).any():
-            jobs.append((f"per_object_{metric}.png", lambda p, metric=metric: F.per_object_bars(
-                main, metric, p, n_boot=options["bootstrap_n"], seed=options["bootstrap_seed"])))
+        present = set(main.loc[main["metric"] == metric, "method"])
+        # the heatmaps' methods (gt first): twenty methods side by side are unreadable
+        bar_methods = [m for m in figure_methods(options) if m in present]
+        if bar_methods:
+            jobs.append((f"per_object_{metric}.png", lambda p, metric=metric, ms=bar_methods:
+                         F.per_object_bars(main, metric, p, methods=ms,
+                                           n_boot=options["bootstrap_n"],
+                                           seed=options["bootstrap_seed"])))
     names = {HEATMAP_PNG, CDF_PNG, *(f"per_object_{m}.png" for m in BAR_METRICS)}
     for name, draw in jobs:
         try:
