@@ -580,14 +580,16 @@ class RunState:
 def execute(st: RunState, unit: Unit, work: Callable[[Path], dict | None]) -> Path:
     """Run ``work(tmp)`` for a unit unless it is cached; the unit appears atomically.
 
-    ``work`` returns a small dict recorded in the unit's ``unit.json`` beside its inputs.
+    ``work`` returns a small dict recorded in the unit's ``unit.json`` beside its inputs and
+    the unit's wall time (``seconds``; not part of any result).
     """
     if st.cache.has(unit.key):
         return st.unit_dir(unit.key)
     with st.cache.atomic(unit.key) as tmp:
+        t0 = time.perf_counter()
         info = work(tmp) or {}
         record = {"kind": unit.kind, "label": unit.label, "inputs": unit.params["inputs"],
-                  "info": info}
+                  "info": info, "seconds": round(time.perf_counter() - t0, 3)}
         text = json.dumps(jsonable(record), sort_keys=True, indent=1) + "\n"
         (tmp / UNIT_FILE).write_text(text, encoding="utf-8")
     return st.unit_dir(unit.key)
