@@ -533,7 +533,7 @@ def _bar_figure(n_objects: int, n_methods: int, legend_rows: int) -> Figure:
     """Figure with one axes placed in inches: room above for title and legend, below for labels."""
     rotate = n_objects > 4
     top = 0.7 + 0.2 * legend_rows
-    left, right, bottom, plot_h = 0.8, 0.15, 0.55 + 0.35 * rotate, 2.8
+    left, right, bottom, plot_h = 0.8, 0.15, 0.6 + 0.5 * rotate, 2.8  # room for the x label
     plot_w = max(4.5, n_objects * (0.22 * n_methods + 0.35))
     w, h = left + plot_w + right, top + plot_h + bottom
     fig = Figure(figsize=(w, h))
