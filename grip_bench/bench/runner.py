@@ -658,15 +658,16 @@ def run_parallel(st: RunState, name: str, units: list[Unit], fn, workers: int) -
     Units are started leaders first (a unit with ``after`` waits for that unit: GRIP's
     variants wait for the first one, which builds the shared sensor features and ANet),
     then the costliest predictions (``MethodSpec.predict_cost``), otherwise in plan order,
-    so that the stage does not end with one long unit on one worker. On an interrupt or a failure the workers are terminated and their unfinished
-    temp folders removed; finished units stay in the cache.
+    so that the stage does not end with one long unit on one worker. On an interrupt or a
+    failure the workers are terminated and their unfinished temp folders removed; finished
+    units stay in the cache.
     """
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    child = RunState(dataclasses.replace(st.cfg, progress=False), st.cache, st.plan, st.log)
     from .methods import METHODS
 
+    child = RunState(dataclasses.replace(st.cfg, progress=False), st.cache, st.plan, st.log)
     leaders = {u.params.get("after") for u in units}
     pending = sorted(units, key=lambda u: (u.key not in leaders, -_predict_cost(u, METHODS)))
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
