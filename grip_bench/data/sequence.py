@@ -207,8 +207,12 @@ class Sequence:
 
     def frames(self, start: int | None = None, stop: int | None = None) -> Sequence:
         """Copy with frames ``[start, stop)`` (Python slice semantics) of every (T, ...) array."""
-        sl = slice(start, stop)
-        cut = lambda d: {k: np.array(v[sl]) for k, v in d.items()}  # noqa: E731
+        return self.take(slice(start, stop))
+
+    def take(self, index) -> Sequence:
+        """Copy with frames ``index`` (a slice, integer indices or a boolean mask over T)
+        of every (T, ...) array."""
+        cut = lambda d: {k: np.array(v[index]) for k, v in d.items()}  # noqa: E731
         return replace(self, body=cut(self.body), rhand=cut(self.rhand), lhand=cut(self.lhand),
                        object=cut(self.object), table=cut(self.table), contact=cut(self.contact))
 

@@ -354,6 +354,12 @@ class DistanceField:
             self._far = _FarGrid.build(self, constants.SDF_FAR_SPACING, constants.SDF_FAR_PADDING)
         return self._far
 
+    def within_grid(self, points) -> np.ndarray:
+        """Bool ``(...)``: points ``(..., 3)`` inside the fine grid's nodes. A point outside is
+        more than ``padding`` from the mesh's bounding box, hence from the mesh."""
+        p = np.asarray(points, np.float64)
+        return ~self._outside_grid(p.reshape(-1, 3)).reshape(p.shape[:-1])
+
     def _outside_grid(self, q: np.ndarray) -> np.ndarray:
         """Points ``(N, 3)`` beyond the grid's nodes ``(N,)`` bool (column by column: 7x faster
         than comparing whole rows)."""

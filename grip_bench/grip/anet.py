@@ -25,6 +25,7 @@ from grip_bench.constants import (
 from grip_bench.errors import InputError
 from grip_bench.grip.blocks import check_config, check_shape
 from grip_bench.grip.ltc import (
+    Latents,
     check_mode,
     decode_frames,
     encoder_decoder,
@@ -123,8 +124,14 @@ class ANet(nn.Module):
         current (B, J, 6) arms at t; noisy_future (B, n_future, J, 6) arms at t+1..t+n_future;
         context (B, context_dim) or None. Returns arms (B, F, J, 6), F = cfg.n_frames.
         """
-        c = self.cfg
+        lat = self.encode(current, noisy_future, context)  # z (B, F, L)
+        return ANetOutput(arms=self.decode(lat.z), z=lat.z, dz=lat.dz)
+
+    def encode(self, current, noisy_future, context=None) -> Latents:
+        """Per-frame latents ``z (B, F, L)`` of the inputs of :meth:`forward`."""
         codes = self.encoder(self.pack_inputs(current, noisy_future, context))  # (B, F*L)
-        lat = split_codes(codes, c.latent, c.consistency)  # z (B, F, L)
-        arms = decode_frames(self.decoder, lat.z).unflatten(-1, (c.n_joints, c.rot_dim))
-        return ANetOutput(arms=arms, z=lat.z, dz=lat.dz)
+        return split_codes(codes, self.cfg.latent, self.cfg.consistency)
+
+    def decode(self, z: torch.Tensor) -> torch.Tensor:
+        """Shared decoder: latents ``(..., L)`` -> arms ``(..., J, 6)``."""
+        return decode_frames(self.decoder, z).unflatten(-1, (self.cfg.n_joints, self.cfg.rot_dim))

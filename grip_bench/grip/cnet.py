@@ -28,6 +28,7 @@ from grip_bench.constants import (
 from grip_bench.errors import InputError
 from grip_bench.grip.blocks import check_config, check_shape
 from grip_bench.grip.ltc import (
+    Latents,
     check_mode,
     decode_frames,
     encoder_decoder,
@@ -127,6 +128,21 @@ class CNet(nn.Module):
             parts.append(future)
         return torch.cat(parts, dim=-1)
 
+    def encode(self, body, ambient, proximity, future=None) -> Latents:
+        """Per-frame latents ``z (B, F, L)`` of the inputs of :meth:`forward`."""
+        codes = self.encoder(self.pack_inputs(body, ambient, proximity, future))  # (B, F*L)
+        return split_codes(codes, self.cfg.latent, self.cfg.consistency)
+
+    def decode(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Shared decoder: latents ``(..., L)`` -> poses ``(..., 2, J, 6)``, proximity ``(..., 2, P)``.
+
+        Inference decodes only the latents it keeps (offline: z_t of every pair)."""
+        c = self.cfg
+        out = decode_frames(self.decoder, z)  # (..., out_dim)
+        n_pose = N_HANDS * c.n_joints * c.rot_dim
+        poses = out[..., :n_pose].unflatten(-1, (N_HANDS, c.n_joints, c.rot_dim))
+        return poses, out[..., n_pose:].unflatten(-1, (N_HANDS, c.proximity_dim))
+
     def forward(
         self,
         body: torch.Tensor,
@@ -141,12 +157,8 @@ class CNet(nn.Module):
         only); future (B, future_dim) or None when ``future_dim == 0``. Hands: 0 left, 1 right.
         """
         c = self.cfg
-        codes = self.encoder(self.pack_inputs(body, ambient, proximity, future))  # (B, F*L)
-        lat = split_codes(codes, c.latent, c.consistency)  # z (B, F, L)
-        out = decode_frames(self.decoder, lat.z)  # (B, F, out_dim)
-        n_pose = N_HANDS * c.n_joints * c.rot_dim
-        poses = out[..., :n_pose].unflatten(-1, (N_HANDS, c.n_joints, c.rot_dim))  # (B, F, 2, J, 6)
-        prox = out[..., n_pose:].unflatten(-1, (N_HANDS, c.proximity_dim))  # (B, F, 2, P)
+        lat = self.encode(body, ambient, proximity, future)  # z (B, F, L)
+        poses, prox = self.decode(lat.z)  # (B, F, 2, J, 6), (B, F, 2, P)
         result = CNetOutput(poses_t=poses[:, 0], proximity_t=prox[:, 0], z_t=lat.z[:, 0])
         if c.n_frames == 2:
             result.poses_t1, result.proximity_t1, result.z_t1 = poses[:, 1], prox[:, 1], lat.z[:, 1]

@@ -145,13 +145,17 @@ def gt_poses_6d(seq) -> np.ndarray:
                      for s in NET_SIDES], 1)
 
 
+def stack_wrists(wrists: dict) -> tuple[np.ndarray, np.ndarray]:
+    """``{side: (rot (T,3,3), transl (T,3))}`` -> ``rot (T, 2, 3, 3)``, ``transl (T, 2, 3)`` (left, right)."""
+    return (np.stack([wrists[s][0] for s in NET_SIDES], 1),
+            np.stack([wrists[s][1] for s in NET_SIDES], 1))
+
+
 def hand_proximity(library, seq, poses_6d, wrists) -> tuple[np.ndarray, np.ndarray]:
     """Proximity sensor ``(T, 2, 99)`` exp(-50 d) and distances ``(T, 2, 99)`` m of given hands."""
     from ..sensors import proximity_feature
 
-    rot = np.stack([wrists[s][0] for s in NET_SIDES], 1)
-    transl = np.stack([wrists[s][1] for s in NET_SIDES], 1)
-    pts = hand_proximity_points(poses_6d, rot, transl, seq.hand_scale or 1.0)
+    pts = hand_proximity_points(poses_6d, *stack_wrists(wrists), seq.hand_scale or 1.0)
     feats = [proximity_feature(library, seq, pts[:, h]) for h in range(2)]
     return np.stack([f[0] for f in feats], 1), np.stack([f[1] for f in feats], 1)
 

@@ -2,8 +2,9 @@
 
 Only Linear layers are counted: in eval mode BatchNorm folds into the preceding Linear
 and activations are O(width), so this is the compute floor a runtime cannot beat.
-"One frame" is one forward call of a network, which is what the pipeline runs per
-generated frame (CNet's call decodes t and t+1; both decodes are counted).
+"One frame" is one forward call of a network (CNet's call decodes t and t+1; both decodes
+are counted). The inference pipeline decodes only the latent each output frame keeps and
+runs RNet only on interaction frames: :func:`pipeline_flops_per_frame` counts that.
 """
 
 from __future__ import annotations
@@ -37,6 +38,18 @@ def cnet_macs(cfg: CNetConfig) -> int:
         cfg.latent, cfg.out_dim, width=cfg.width, hidden=cfg.hidden, n_blocks=cfg.n_dec_blocks
     )
     return enc + cfg.n_frames * dec
+
+
+def cnet_decoder_macs(cfg: CNetConfig) -> int:
+    """One decode of one frame's latent by CNet's shared decoder."""
+    return resmlp_macs(cfg.latent, cfg.out_dim, width=cfg.width, hidden=cfg.hidden,
+                       n_blocks=cfg.n_dec_blocks)
+
+
+def anet_decoder_macs(cfg: ANetConfig) -> int:
+    """One decode of one frame's latent by ANet's shared decoder."""
+    return resmlp_macs(cfg.latent, cfg.pose_dim, width=cfg.width, hidden=cfg.hidden,
+                       n_blocks=cfg.n_dec_blocks)
 
 
 def anet_macs(cfg: ANetConfig) -> int:
@@ -75,6 +88,15 @@ def macs_per_frame(cfg) -> int:
 def flops_per_frame(cfg) -> int:
     """FLOPs of one forward call (a multiply-add is two FLOPs)."""
     return 2 * macs_per_frame(cfg)
+
+
+def pipeline_flops_per_frame(cnet: CNetConfig, anet: ANetConfig, rnet: RNetConfig,
+                             interaction_share: float = 1.0) -> float:
+    """FLOPs per output frame of the offline pipeline: CNet's encoder and one decode, ANet's
+    encoder and one decode (frame t+1), RNet on a share ``interaction_share`` of the frames."""
+    cnet_once = cnet_macs(cnet) - (cnet.n_frames - 1) * cnet_decoder_macs(cnet)
+    anet_once = anet_macs(anet) - (anet.n_frames - 1) * anet_decoder_macs(anet)
+    return 2.0 * (cnet_once + anet_once + interaction_share * rnet_macs(rnet))
 
 
 def runtime_floor(cfgs: Iterable, flops_per_second: float) -> float:

@@ -7,8 +7,9 @@ at prediction time (``grip-no-rnet`` skips RNet).
 
 ``predict`` reads from :class:`~grip_bench.bench.methods.PredictContext`:
 ``online`` (streaming), ``future_frames`` (must match the checkpoint), and in ``extra``:
-``no_anet`` (use the input wrists) and ``refine`` (Tab. 3: refine the given noisy hands
-with ANet + RNet instead of generating hands; the runner sets it for perturbed sets).
+``no_anet`` (use the input wrists), ``refine`` (Tab. 3: refine the given noisy hands
+with ANet + RNet instead of generating hands; the runner sets it for perturbed sets) and
+``precision`` ("fp32", the default, or "bf16": the networks' arithmetic).
 """
 
 from __future__ import annotations
@@ -60,7 +61,8 @@ class GripMethod:
         check_future(self.variant, ctx.future_frames)
         return Options(variant=self.variant, use_anet=not extra.get("no_anet", False),
                        use_rnet=self.use_rnet, online=bool(ctx.online),
-                       refine=bool(extra.get("refine", False)))
+                       refine=bool(extra.get("refine", False)),
+                       precision=extra.get("precision", "fp32"))
 
     def predict(self, seq, ctx):
         if self.nets is None:

@@ -35,8 +35,17 @@ from .. import constants as C
 from ..bodies.layouts import SMPLX_INDEX
 from ..errors import InputError
 from ..geometry.rotations import matrix_to_axis_angle, rotation_6d_to_axis_angle
-from ..sensors import NET_SIDES, future_cue, stage_one, wrist_frames
-from .data import ARM_JOINTS, arms_6d, body_context, gt_poses_6d, hand_proximity
+from ..sensors import NET_SIDES, future_cue, proximity_feature, stage_one, wrist_frames
+from .data import (
+    ARM_JOINTS,
+    arms_6d,
+    body_context,
+    gt_poses_6d,
+    hand_proximity,
+    hand_proximity_points,
+    stack_wrists,
+)
+from .frozen import frozen
 from .train import Variant, sensor_inputs
 
 BATCH = 1024  # frames per network call
@@ -52,6 +61,7 @@ class Options:
     online: bool = False
     refine: bool = False  # refine the input hands instead of generating them (Tab. 3)
     interaction_distance: float = C.INTERACTION_DISTANCE
+    precision: str = "fp32"  # network arithmetic: "fp32" or "bf16" (grip_bench.grip.frozen)
 
 
 def _t(a) -> torch.Tensor:
@@ -79,8 +89,9 @@ def denoise_arms_many(anet, noisy: list[np.ndarray], online: bool = False) -> li
     for t in range(int(lengths.max(initial=0)) - 1):
         live = np.flatnonzero(lengths - 1 > t)
         fut = [np.minimum(np.arange(t + 1, t + 1 + n), t + 1 if online else lengths[i] - 1) for i in live]
-        res = anet(_t(np.stack([out[i][t] for i in live])),
-                   _t(np.stack([noisy[i][f] for i, f in zip(live, fut, strict=True)]))).arms[:, 1].numpy()
+        lat = anet.encode(_t(np.stack([out[i][t] for i in live])),
+                          _t(np.stack([noisy[i][f] for i, f in zip(live, fut, strict=True)])))
+        res = anet.decode(lat.z[:, 1]).numpy()  # only frame t+1 is kept
         for k, i in enumerate(live):
             out[i][t + 1] = noisy[i][t + 1] + res[k]
     return out
@@ -139,7 +150,9 @@ class GripPipeline:
     """Trained networks + options -> ``run(seq, library) -> Sequence`` with GRIP's hands."""
 
     def __init__(self, nets: dict, options: Options):
-        self.nets, self.opt = nets, options
+        # the inference form of each network (BatchNorm folded), built once per network
+        self.nets = {k: frozen(n, options.precision) for k, n in nets.items()}
+        self.opt = options
 
     def arms_and_wrists(self, seq) -> tuple[np.ndarray, dict]:
         """(body_pose (T, 63), wrists {side: (rot, transl)}) after ANet (or as given)."""
@@ -159,75 +172,132 @@ class GripPipeline:
 
     def cnet_poses(self, seq, library, body_pose, wrists) -> np.ndarray:
         """Stage one + CNet: both hands' poses ``(T, 2, 15, 6)``."""
+        return self.cnet_poses_many([seq], library, [(body_pose, wrists)])[0]
+
+    def cnet_poses_many(self, seqs, library, arms) -> list[np.ndarray]:
+        """:meth:`cnet_poses` of several sequences (``arms``: their ``(body_pose, wrists)``),
+        CNet batched across them in groups of about ``BATCH`` frames."""
+        out, group, size = [], [], 0
+        for seq, (body_pose, wrists) in zip(seqs, arms, strict=True):
+            group.append(self._cnet_inputs(seq, library, body_pose, wrists))
+            size += seq.n_frames
+            if size >= BATCH:
+                out += self._run_cnet(group)
+                group, size = [], 0
+        return out + (self._run_cnet(group) if group else [])
+
+    def _cnet_inputs(self, seq, library, body_pose, wrists) -> dict:
+        """Per-frame CNet inputs of one sequence, the encoder rows (frame pairs) and, for each
+        output frame, the row and the latent (0: z_t, 1: z_t+1) it decodes."""
         v, cnet, T = self.opt.variant, self.nets["cnet"], seq.n_frames
         kind = "none" if v.ambient == "none" else v.ambient
         one = stage_one(library, seq, wrists, kind)
         amb, prox = sensor_inputs(one.ambient, one.proximity, v)
-        body = body_context(seq, wrists, body_pose)
         cue = future_cue(one.mean_dist, v.future_frames, seq.fps, online=self.opt.online)
         t = np.arange(T)
-        if self.opt.online:  # pair (t-1, t), decode t as the pair's next frame
-            a, b, take = np.maximum(t - 1, 0), t, "poses_t1"
-        else:  # pair (t, t+1); the last frame is the next frame of the pair (T-2, T-1)
-            a, b, take = t, np.minimum(t + 1, T - 1), "poses_t"
         if cnet.cfg.n_frames == 1:
-            a, b, take = t, t, "poses_t"
-        out = np.zeros((T, 2, 15, 6), np.float32)
-        with torch.no_grad():
-            for s in range(0, T, BATCH):
-                i, j = a[s:s + BATCH], b[s:s + BATCH]
-                pair = np.stack([i, j], 1)
-                res = cnet(_t(body[pair]), _t(amb[pair]), _t(prox[pair]),
-                           _t(cue[j if self.opt.online else i]) if v.future_frames else None)
-                out[s:s + BATCH] = getattr(res, take).numpy()
-        if not self.opt.online and cnet.cfg.n_frames == 2 and T >= 2:
-            out[-1] = self._last_frame(cnet, body, amb, prox, cue, T)
-        return out
+            pairs, row, latent = np.stack([t, t], 1), t, np.zeros(T, int)
+        elif self.opt.online:  # pair (t-1, t), decode t as the pair's next frame
+            pairs, row, latent = np.stack([np.maximum(t - 1, 0), t], 1), t, np.ones(T, int)
+        elif T == 1:
+            pairs, row, latent = np.zeros((1, 2), int), t, np.zeros(T, int)
+        else:  # pairs (t, t+1); the last frame is z_t+1 of the pair (T-2, T-1)
+            pairs = np.stack([t[:-1], t[1:]], 1)
+            row, latent = np.minimum(t, T - 2), (t == T - 1).astype(int)
+        cue_rows = pairs[:, 1] if self.opt.online else pairs[:, 0]
+        return {"body": body_context(seq, wrists, body_pose), "ambient": amb, "proximity": prox,
+                "cue": cue[cue_rows] if v.future_frames else None, "pairs": pairs, "row": row,
+                "latent": latent}
 
     @torch.no_grad()
-    def _last_frame(self, cnet, body, amb, prox, cue, T) -> np.ndarray:
-        pair = np.array([[T - 2, T - 1]])
-        fut = _t(cue[[T - 2]]) if self.opt.variant.future_frames else None
-        return cnet(_t(body[pair]), _t(amb[pair]), _t(prox[pair]), fut).poses_t1[0].numpy()
+    def _run_cnet(self, group: list[dict]) -> list[np.ndarray]:
+        """Encode every sequence's pairs, then decode only the latents the outputs use."""
+        cnet = self.nets["cnet"]
+        frames = np.cumsum([0] + [len(g["body"]) for g in group])
+        rows = np.cumsum([0] + [len(g["pairs"]) for g in group])
+        cat = lambda k: np.concatenate([g[k] for g in group])  # noqa: E731
+        body, amb, prox = cat("body"), cat("ambient"), cat("proximity")
+        pairs = np.concatenate([g["pairs"] + f for g, f in zip(group, frames, strict=False)])
+        cue = cat("cue") if group[0]["cue"] is not None else None
+        z = torch.cat([cnet.encode(_t(body[p]), _t(amb[p]), _t(prox[p]),
+                                   None if cue is None else _t(cue[s:s + BATCH])).z
+                       for s in range(0, len(pairs), BATCH) for p in [pairs[s:s + BATCH]]])
+        pick = np.concatenate([g["row"] + r for g, r in zip(group, rows, strict=False)])
+        latent = np.concatenate([g["latent"] for g in group])
+        zs = z[torch.as_tensor(pick), torch.as_tensor(latent)]  # (sum T, L)
+        poses = torch.cat([cnet.decode(zs[s:s + BATCH])[0] for s in range(0, len(zs), BATCH)])
+        poses = poses.numpy()
+        return [poses[a:b] for a, b in zip(frames[:-1], frames[1:], strict=True)]
 
-    @torch.no_grad()
     def refine(self, seq, library, poses: np.ndarray, wrists: dict) -> np.ndarray:
         """Stage two: proximity on ``poses (T, 2, 15, 6)`` -> RNet on interaction frames."""
-        prox, dist = hand_proximity(library, seq, poses, wrists)
-        if self.opt.refine:
-            mask = np.ones(dist.shape[:2], bool)
-        else:
-            mask = dist.min(axis=2) < self.opt.interaction_distance  # (T, 2)
-        out = poses.copy()
-        rnet = self.nets["rnet"]
-        for s in range(0, len(poses), BATCH):
+        return self.refine_many([seq], library, [poses], [wrists])[0]
+
+    @torch.no_grad()
+    def refine_many(self, seqs, library, poses: list, wrists: list) -> list[np.ndarray]:
+        """:meth:`refine` of several sequences, RNet batched across their interaction frames."""
+        rows = [self._interaction(seq, library, p, w) for seq, p, w in zip(seqs, poses, wrists, strict=True)]
+        frames = [np.flatnonzero(mask.any(1)) for mask, _ in rows]
+        x = np.concatenate([p[f] for p, f in zip(poses, frames, strict=True)])
+        prox = np.concatenate([pr[f] for (_, pr), f in zip(rows, frames, strict=True)])
+        mask = np.concatenate([m[f] for (m, _), f in zip(rows, frames, strict=True)])
+        rnet, y = self.nets["rnet"], np.empty_like(x)
+        for s in range(0, len(x), BATCH):
             sl = slice(s, s + BATCH)
-            out[sl] = rnet(_t(poses[sl]), _t(prox[sl]), mask=torch.as_tensor(mask[sl])).numpy()
+            y[sl] = rnet(_t(x[sl]), _t(prox[sl]), mask=torch.as_tensor(mask[sl])).numpy()
+        out, at = [], 0
+        for p, f in zip(poses, frames, strict=True):
+            o = np.array(p, np.float32, copy=True)
+            o[f] = y[at:at + len(f)]
+            out.append(o)
+            at += len(f)
         return out
+
+    def _interaction(self, seq, library, poses, wrists) -> tuple[np.ndarray, np.ndarray]:
+        """RNet's mask ``(T, 2)`` and the proximity ``(T, 2, 99)`` on ``poses``, computed only
+        where a hand can interact: a hand with every proximity vertex outside the object's
+        distance grid is farther than the grid padding, which exceeds ``interaction_distance``,
+        so its (exact, costly) distances would decide nothing and RNet leaves it as it is."""
+        T = len(poses)
+        if self.opt.refine:  # every frame (module docstring)
+            prox, _ = hand_proximity(library, seq, poses, wrists)
+            return np.ones((T, 2), bool), prox
+        field = library.field(seq.obj_name)
+        pts = hand_proximity_points(poses, *stack_wrists(wrists), seq.hand_scale or 1.0)
+        if self.opt.interaction_distance < field.padding:
+            near = field.within_grid(library.world_to_object(seq, pts.reshape(T, -1, 3)))
+            near = near.reshape(T, 2, -1).any(2)  # (T, 2)
+        else:
+            near = np.ones((T, 2), bool)
+        mask, prox = np.zeros((T, 2), bool), np.zeros((T, 2, C.PROXIMITY_N_VERTS), np.float32)
+        for h in range(2):
+            cand = np.flatnonzero(near[:, h])
+            if len(cand):
+                prox[cand, h], dist = proximity_feature(library, seq.take(cand), pts[cand, h])
+                mask[cand, h] = dist.min(axis=1) < self.opt.interaction_distance
+        return mask, prox
 
     def run(self, seq, library):
         """The input sequence with GRIP's hands (and ANet's arms and wrists when enabled)."""
         return self.run_many([seq], library)[0]
 
     def run_many(self, seqs, library) -> list:
-        """:meth:`run` over several sequences (throughput mode): ANet's recursion is batched
-        across them, the rest runs per sequence, batched over its frames. Equal to ``run``
-        on each up to float rounding (BLAS picks kernels by batch size)."""
+        """:meth:`run` over several sequences (throughput mode): ANet's recursion, CNet and
+        RNet are batched across them; the sensors run per sequence. Equal to ``run`` on each
+        up to float rounding (BLAS picks kernels by batch size)."""
         for seq in seqs:
             if seq.n_frames < 1:
                 raise InputError("sequence has no frames", seq.name)
         arms = self.arms_and_wrists_many(seqs)
-        return [self._hands(seq, library, *a) for seq, a in zip(seqs, arms, strict=True)]
-
-    def _hands(self, seq, library, body_pose, wrists):
         if self.opt.refine:
-            poses = gt_poses_6d(seq)  # the given (noisy) hands
+            poses = [gt_poses_6d(seq) for seq in seqs]  # the given (noisy) hands
         else:
-            poses = self.cnet_poses(seq, library, body_pose, wrists)
+            poses = self.cnet_poses_many(seqs, library, arms)
         if self.opt.use_rnet:
-            poses = self.refine(seq, library, poses, wrists)
-        return with_hands(seq, poses, body_pose if self.opt.use_anet else None,
-                          wrists if self.opt.use_anet else None)
+            poses = self.refine_many(seqs, library, poses, [w for _, w in arms])
+        anet = self.opt.use_anet
+        return [with_hands(seq, p, bp if anet else None, w if anet else None)
+                for seq, p, (bp, w) in zip(seqs, poses, arms, strict=True)]
 
 
 def with_hands(seq, poses: np.ndarray, body_pose=None, wrists=None):

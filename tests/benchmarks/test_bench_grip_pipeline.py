@@ -6,13 +6,15 @@ both hands. Weights are random (speed does not depend on them); the residual ANe
 is zeroed as in training so the wrists stay on the sequence.
 
 - offline: 1 or 16 copies of a 120-frame grasping sequence per call -> frames/s
-  (``extra_info``); with 16, ANet's per-frame recursion is batched across sequences;
+  (``extra_info``); with 16, ANet's per-frame recursion, CNet and RNet are batched across
+  sequences;
+- precision: fp32 (what the tables use) and bf16 (``--precision bf16``);
 - online: the latency of one new frame, measured as the pipeline on the 2-frame window
   (t-1, t) in streaming mode: an upper bound, as it recomputes frame t-1's sensors too.
 
 Run: ``pytest tests/benchmarks/test_bench_grip_pipeline.py -o addopts="" --benchmark-only -s``.
 Measures; asserts nothing about time. Compare with ``grip_bench.grip.flops`` (the FLOPs
-floor of the networks alone).
+floor of the networks alone: ``pipeline_flops_per_frame``).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import torch
 from grip_bench.data.grab_io import read_grab
 from grip_bench.data.library import ObjectLibrary
 from grip_bench.grip import ANetConfig, CNetConfig, RNetConfig
-from grip_bench.grip.flops import flops_per_frame
+from grip_bench.grip.flops import pipeline_flops_per_frame
 from grip_bench.grip.pipeline import GripPipeline, Options
 from grip_bench.grip.train import Variant
 from tests.eval_fixtures import grasp_dataset
@@ -52,15 +54,16 @@ def scene(tmp_path_factory):
 
 
 def _flops() -> float:
-    return float(sum(flops_per_frame(c) for c in (CNetConfig(), ANetConfig(), RNetConfig())))
+    """Network FLOPs per output frame, RNet counted on every frame (an upper bound)."""
+    return pipeline_flops_per_frame(CNetConfig(), ANetConfig(), RNetConfig())
 
 
-@pytest.mark.parametrize("n_seqs", [1, 16])
-def test_bench_pipeline_offline(benchmark, scene, n_seqs):
-    """``n_seqs`` sequences per call (``run_many``: ANet's recursion batched across them)."""
+@pytest.mark.parametrize("n_seqs,precision", [(1, "fp32"), (16, "fp32"), (16, "bf16")])
+def test_bench_pipeline_offline(benchmark, scene, n_seqs, precision):
+    """``n_seqs`` sequences per call (``run_many``: ANet, CNet and RNet batched across them)."""
     seq, lib = scene
     seqs = [seq] * n_seqs
-    pipe = GripPipeline(paper_nets(), Options(Variant()))
+    pipe = GripPipeline(paper_nets(), Options(Variant(), precision=precision))
     pipe.run_many(seqs[:2], lib)  # warm-up: allocations, lazy imports
     out = benchmark.pedantic(lambda: pipe.run_many(seqs, lib), rounds=3, iterations=1)
     assert len(out) == n_seqs and out[0].n_frames == T
@@ -70,10 +73,11 @@ def test_bench_pipeline_offline(benchmark, scene, n_seqs):
         benchmark.extra_info["frames_per_s"] = frames / benchmark.stats.stats.mean
 
 
-def test_bench_pipeline_online_frame(benchmark, scene):
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_bench_pipeline_online_frame(benchmark, scene, precision):
     seq, lib = scene
     window = seq.frames(T // 2 - 1, T // 2 + 1)
-    pipe = GripPipeline(paper_nets(), Options(Variant(), online=True))
+    pipe = GripPipeline(paper_nets(), Options(Variant(), online=True, precision=precision))
     pipe.run(window, lib)
     out = benchmark.pedantic(lambda: pipe.run(window, lib), rounds=20, iterations=1)
     assert out.n_frames == 2

@@ -9,7 +9,7 @@ from torch import nn
 from grip_bench.errors import InputError
 from grip_bench.grip import ANetConfig, CNetConfig, RNetConfig
 from grip_bench.grip import losses as L
-from grip_bench.grip.flops import macs_per_frame, runtime_floor
+from grip_bench.grip.flops import macs_per_frame, pipeline_flops_per_frame, runtime_floor
 
 B = 4
 TINY = dict(hidden=32, width=16, latent=8, dropout=0.0)
@@ -362,3 +362,10 @@ def test_flops_match_the_modules(paper):
     assert counted == [macs_per_frame(c) for c in cfgs]
     floor = runtime_floor(cfgs, flops_per_second=1e9)
     assert floor == pytest.approx(2 * sum(counted) / 1e9)
+    # the pipeline: encoders once, one decode per output frame, RNet on half of the frames
+    once = [
+        linear_macs(cnet, lambda: cnet.decode(cnet.encode(**inputs[0]).z[:, 0])),
+        linear_macs(anet, lambda: anet.decode(anet.encode(**inputs[1]).z[:, 1])),
+    ]
+    want = 2 * (sum(once) + 0.5 * counted[2])
+    assert pipeline_flops_per_frame(*cfgs, interaction_share=0.5) == pytest.approx(want)

@@ -150,6 +150,58 @@ def test_run_many_batches_anet_across_sequences_without_changing_results(root, t
                 np.testing.assert_allclose(getattr(got, part)[key], getattr(one, part)[key], atol=1e-5)
 
 
+@torch.no_grad()
+def _naive_hands(nets, variant, seq, lib):
+    """GRIP offline, written plainly: eval-mode networks, every decoded frame kept, exact
+    proximity on every frame, RNet on every frame behind the interaction mask."""
+    from grip_bench.grip.data import arms_6d, body_context, hand_proximity
+    from grip_bench.grip.pipeline import moved_wrists, set_arms
+    from grip_bench.grip.train import sensor_inputs
+    from grip_bench.sensors import NET_SIDES, future_cue, stage_one, wrist_frames
+
+    t_ = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+    noisy = arms_6d(seq.body["body_pose"])
+    arms, T = noisy.copy(), seq.n_frames
+    for t in range(T - 1):
+        fut = np.minimum(np.arange(t + 1, t + 6), T - 1)
+        arms[t + 1] = noisy[t + 1] + nets["anet"](t_(arms[t][None]), t_(noisy[fut][None])).arms[0, 1].numpy()
+    pose0 = np.asarray(seq.body["body_pose"], np.float64)
+    body_pose = set_arms(pose0, arms)
+    wrists = moved_wrists(seq, pose0, body_pose, {s: wrist_frames(seq, s) for s in NET_SIDES})
+    one = stage_one(lib, seq, wrists, variant.ambient)
+    amb, prox = sensor_inputs(one.ambient, one.proximity, variant)
+    body, cue = body_context(seq, wrists, body_pose), future_cue(one.mean_dist, variant.future_frames)
+    poses = np.zeros((T, 2, 15, 6), np.float32)
+    for t in range(T - 1):
+        p = [t, t + 1]
+        res = nets["cnet"](t_(body[p][None]), t_(amb[p][None]), t_(prox[p][None]), t_(cue[[t]]))
+        poses[t] = res.poses_t[0].numpy()
+        poses[t + 1] = res.poses_t1[0].numpy()  # kept for the last frame only
+    hp, dist = hand_proximity(lib, seq, poses, wrists)
+    mask = torch.as_tensor(dist.min(axis=2) < 0.02)
+    return nets["rnet"](t_(poses), t_(hp), mask=mask).numpy(), mask.numpy()
+
+
+def test_pipeline_matches_a_naive_reference(root, trained):
+    """Folded networks, decoding only the latents kept, and proximity computed only where a
+    hand can interact change nothing but float rounding."""
+    from grip_bench.geometry.rotations import rotation_6d_to_matrix
+    from grip_bench.grip.data import gt_poses_6d
+    from grip_bench.grip.pipeline import GripPipeline, Options
+
+    m = GripMethod()
+    m.load(trained)
+    lib = ObjectLibrary(root)
+    seqs = [read_grab(f) for f in list_sequences(root)[:2]]
+    got = GripPipeline(m.nets, Options(m.variant)).run_many(seqs, lib)
+    for seq, pred in zip(seqs, got, strict=True):
+        ref, mask = _naive_hands(m.nets, m.variant, seq, lib)
+        assert mask.any() and not mask.all()  # both kinds of frames are exercised
+        want = rotation_6d_to_matrix(torch.as_tensor(ref, dtype=torch.float64))
+        got = rotation_6d_to_matrix(torch.as_tensor(gt_poses_6d(pred), dtype=torch.float64))
+        torch.testing.assert_close(got, want, atol=2e-4, rtol=0)
+
+
 def test_no_anet_keeps_wrists_and_refine_keeps_far_fingers_close(root, trained):
     m = GripMethod()
     m.load(trained)
