@@ -354,6 +354,18 @@ class DistanceField:
             self._far = _FarGrid.build(self, constants.SDF_FAR_SPACING, constants.SDF_FAR_PADDING)
         return self._far
 
+    def grid_signed_distance(self, points: torch.Tensor) -> torch.Tensor:
+        """Differentiable signed distance ``(...)`` of torch points ``(..., 3)`` from the grid
+        alone (trilinear, no exact fallback; beyond the grid the border value), float32.
+
+        For losses: its gradient is the trilinear field's, and its values agree with
+        :meth:`signed_distance` wherever that one trusts the grid.
+        """
+        u = points.to(torch.float32) * self._scale + self._shift
+        v = F.grid_sample(self._vol, u.reshape(1, 1, 1, -1, 3), align_corners=True,
+                          padding_mode="border")
+        return v.reshape(points.shape[:-1])
+
     def within_grid(self, points) -> np.ndarray:
         """Bool ``(...)``: points ``(..., 3)`` inside the fine grid's nodes. A point outside is
         more than ``padding`` from the mesh's bounding box, hence from the mesh."""

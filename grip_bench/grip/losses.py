@@ -118,6 +118,20 @@ def rnet_loss(refined, gt_poses, cfg: LossConfig, hand_fn: HandFn | None = None)
     return _total(terms, weights), terms
 
 
+def penetration_depth(signed_distance: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Summed depth (m) of the vertices inside the object, averaged over the hands.
+
+    signed_distance (..., V) of each hand's vertices (negative inside); mask (...) bool or
+    float selects the hands that count (None: all). Zero for a hand that touches without
+    entering, so it pushes fingers out of the object and never away from its surface.
+    """
+    depth = torch.relu(-signed_distance).sum(-1)  # (...)
+    if mask is None:
+        return depth.mean()
+    w = mask.to(depth.dtype)
+    return (depth * w).sum() / w.sum().clamp(min=1.0)
+
+
 def _consistency_terms(consistency, dz, pred, gt) -> dict:
     """The variant's consistency term; pred, gt (B, F, ...) with frames on dim 1."""
     if check_mode(consistency) == "latent" and dz is not None:
