@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.constants import MANIPNET_FUTURE, MANIPNET_PAST, MANIPNET_VOXEL_RES
+from grip_bench.constants import MANIPNET_FUTURE, MANIPNET_PAST, MANIPNET_VOXEL_RES, PROXIMITY_DECAY
 from grip_bench.errors import InputError
 from grip_bench.geometry.rotations import axis_angle_to_rotation_6d, rotation_6d_to_axis_angle
 
@@ -52,6 +52,12 @@ class ManipNetTrainConfig:
     # fingers "copy the previous pose" is nearly optimal, so without it the model never
     # learns to move the fingers towards what the object asks for.
     prev_noise: float = 0.1
+    # GRIP's proximity L1 and the penetration depth (m, summed over the vertices), on the
+    # ground truth's contact frames: the hand-object terms every learned hand generator of
+    # the suite is trained with (0 turns them off).
+    w_proximity: float = 10.0
+    w_penetration: float = 40.0
+    contact_vertices: int = 256  # hand vertices of those terms (a fixed stride subset)
 
 
 def proximity_fn(hand):
@@ -76,6 +82,8 @@ class SeqData:
     def __init__(self, seq, library):
         self.wrist_rot, self.wrist_pos = U.wrist_pose(seq.hand_params("right"))
         self.obj_rot, self.obj_pos = U.object_pose(seq)
+        self.obj_name, self.scale = seq.obj_name, float(seq.hand_scale or 1.0)
+        self.contact = seq.contact_frames("right")  # (T,) bool
         self.pose = np.asarray(seq.rhand["hand_pose"], float).reshape(-1, 15, 3)
         field = library.field(seq.obj_name)
         self.sdf = lambda p: field.signed_distance(p, far="bound")  # noqa: E731
@@ -119,6 +127,47 @@ def _build(seqs, library, cfg, noise, rng):
     return data, _cat(feats), torch.cat(targets), np.concatenate(owner)
 
 
+class ContactTerms:
+    """GRIP's proximity L1 and the penetration depth of the predicted right hand, per frame
+    row, read from each object's distance grid (differentiable in the pose)."""
+
+    def __init__(self, data: list[SeqData], library, n_vertices: int):
+        names = sorted({d.obj_name for d in data})
+        self.fields = [library.field(n) for n in names]
+        hand = U.hand_model("right")
+        self.hand = U.SubsetHand(hand, U.vertex_subset(hand, n_vertices))
+        cat = lambda f: torch.as_tensor(np.concatenate([f(d) for d in data]), dtype=torch.float32)  # noqa: E731
+        n = lambda d: len(d.pose)  # noqa: E731
+        self.wrist_rot, self.wrist_pos = cat(lambda d: d.wrist_rot), cat(lambda d: d.wrist_pos)
+        self.obj_rot, self.obj_pos = cat(lambda d: d.obj_rot), cat(lambda d: d.obj_pos)
+        self.scale = cat(lambda d: np.full(n(d), d.scale))
+        self.object = torch.as_tensor(np.concatenate([np.full(n(d), names.index(d.obj_name)) for d in data]))
+        self.contact = np.concatenate([d.contact for d in data])
+
+    def signed_distance(self, pose6: torch.Tensor, rows: np.ndarray) -> torch.Tensor:
+        """Signed distances ``(B, K)`` (m) of the hand with finger poses ``pose6 (B, 15, 6)``
+        at the wrists of frame rows ``rows``."""
+        from grip_bench.geometry.distance import grid_signed_distance_many
+
+        r = torch.as_tensor(rows)
+        v = self.hand(None, rotation_6d_to_axis_angle(pose6), None)[0] * self.scale[r, None, None]
+        world = torch.einsum("bij,bkj->bki", self.wrist_rot[r], v) + self.wrist_pos[r, None]
+        local = torch.einsum("bji,bkj->bki", self.obj_rot[r], world - self.obj_pos[r, None])  # R^T (x - t)
+        return grid_signed_distance_many(self.fields, self.object[r], local)
+
+    def __call__(self, pred6, target6, rows: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """(proximity L1, penetration depth) over the ground truth's contact frames in ``rows``."""
+        keep = np.flatnonzero(self.contact[rows])
+        if not len(keep):
+            zero = pred6.sum() * 0.0
+            return zero, zero
+        sd = self.signed_distance(pred6[keep], rows[keep])
+        with torch.no_grad():
+            gt = self.signed_distance(target6[keep], rows[keep])
+        att = lambda d: torch.exp(-PROXIMITY_DECAY * torch.relu(d))  # noqa: E731
+        return (att(sd) - att(gt)).abs().mean(), torch.relu(-sd).sum(-1).mean()
+
+
 def _predict_all(net, feats, bs=1024) -> torch.Tensor:
     net.eval()
     with torch.no_grad():
@@ -146,14 +195,18 @@ def _scheduled(net, data, feats, cfg: ManipNetConfig, share, rng):
     return feats
 
 
-def _loss(net, feats, target, idx, hand, vids, cfg):
+def _loss(net, feats, target, idx, hand, vids, cfg, contact: ContactTerms | None = None):
     pred = net(*(x[idx] for x in feats))  # (B, 15, 6)
     loss = (pred - target[idx]).pow(2).mean()
     aa = lambda p: rotation_6d_to_axis_angle(p)  # noqa: E731
     v_pred = hand(None, aa(pred), None)[0][:, vids]
     with torch.no_grad():
         v_gt = hand(None, aa(target[idx]), None)[0][:, vids]
-    return loss + cfg.w_vertex * (v_pred - v_gt).abs().mean()
+    loss = loss + cfg.w_vertex * (v_pred - v_gt).abs().mean()
+    if contact is not None:
+        prox, pen = contact(pred, target[idx], idx)
+        loss = loss + cfg.w_proximity * prox + cfg.w_penetration * pen
+    return loss
 
 
 def train_manipnet(name, data_dir, cfg: ManipNetTrainConfig, seed, progress):
@@ -177,6 +230,8 @@ def train_manipnet(name, data_dir, cfg: ManipNetTrainConfig, seed, progress):
     U.log(progress, name, f"{len(owner)} frames of {len(seqs)} sequences")
     hand = U.hand_model("right")
     vids = U.vertex_subset(hand, cfg.loss_vertices)
+    contact = (ContactTerms(data, library, cfg.contact_vertices)
+               if cfg.w_proximity or cfg.w_penetration else None)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     teacher = feats
     for epoch in range(cfg.epochs + cfg.ss_epochs):
@@ -185,7 +240,7 @@ def train_manipnet(name, data_dir, cfg: ManipNetTrainConfig, seed, progress):
         net.train()
         total = 0.0
         for idx in U.batches(len(owner), cfg.batch_size, rng):
-            loss = _loss(net, feats, target, idx, hand, vids, cfg)
+            loss = _loss(net, feats, target, idx, hand, vids, cfg, contact)
             opt.zero_grad()
             loss.backward()
             opt.step()

@@ -26,7 +26,7 @@ import trimesh
 
 from grip_bench import constants
 
-__all__ = ["DistanceField"]
+__all__ = ["DistanceField", "grid_signed_distance_many"]
 
 _CHUNK = 1 << 18  # points per query chunk: bounds the temporaries of huge batched calls
 _BOX_MARGIN = 1e-3  # m; exact queries this far outside the mesh's bounding box skip the sign test
@@ -501,3 +501,17 @@ class _FarGrid:
         u = torch.from_numpy(p).to(torch.float32).mul_(self._scale).add_(self._shift)
         vals = F.grid_sample(self._vol, u.view(1, 1, 1, -1, 3), align_corners=True)
         return vals.view(-1).numpy().astype(np.float64), beyond
+
+
+def grid_signed_distance_many(fields: list, which: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """:meth:`DistanceField.grid_signed_distance` of samples on several objects.
+
+    fields: the objects' fields; which (B,) int: each sample's field; points (B, ..., 3) in
+    that object's frame. Returns (B, ...), differentiable in the points: one grid read per
+    object, the samples grouped by object and put back in batch order.
+    """
+    order = torch.argsort(which, stable=True)
+    ids, counts = torch.unique_consecutive(which[order], return_counts=True)
+    parts = [fields[k].grid_signed_distance(x)
+             for k, x in zip(ids.tolist(), torch.split(points[order], counts.tolist()), strict=True)]
+    return torch.cat(parts)[torch.argsort(order)]

@@ -38,6 +38,7 @@ import torch
 from .. import constants as C
 from ..checkpoint import load_checkpoint, save_checkpoint
 from ..errors import InputError
+from ..geometry.distance import grid_signed_distance_many
 from ..geometry.rotations import rotation_6d_to_axis_angle, rotation_6d_to_matrix
 from .anet import ANetConfig
 from .cnet import CNetConfig, future_cue_dim
@@ -167,12 +168,7 @@ class HandObjectDistance:
         world = torch.einsum("bhij,bhvj->bhvi", b["wrist_rot"], v) + b["wrist_transl"][:, :, None]
         # GRAB's row-vector object pose: local = R (world - t) per frame
         local = torch.einsum("bij,bhvj->bhvi", b["obj_rot"], world - b["obj_transl"][:, None, None])
-        # one grid read per object; samples grouped by object, then put back in batch order
-        order = torch.argsort(b["object"], stable=True)
-        ids, counts = torch.unique_consecutive(b["object"][order], return_counts=True)
-        parts = [self.fields[k].grid_signed_distance(x)
-                 for k, x in zip(ids.tolist(), torch.split(local[order], counts.tolist()), strict=True)]
-        return torch.cat(parts)[torch.argsort(order)]
+        return grid_signed_distance_many(self.fields, b["object"], local)
 
 
 # --- RNet data ------------------------------------------------------------------------------

@@ -188,3 +188,37 @@ def test_untrained_method_refuses_to_predict():
     for name in NAMES:
         with pytest.raises(InputError, match="load a checkpoint"):
             methods.get(name).build().predict(None, None)
+
+
+def test_manipnet_contact_terms_match_the_numpy_hand_and_field(tmp_path):
+    """ContactTerms' differentiable distances = the hand posed in numpy and the field's exact
+    distances; its penetration term is zero on the ground truth's own (touching) frames."""
+    import numpy as np
+    import torch
+    from grip_baselines import common as U
+    from grip_baselines.manipnet_method import ContactTerms, SeqData
+
+    from grip_bench.data.grab_io import list_sequences, read_grab
+    from grip_bench.data.library import ObjectLibrary
+    from grip_bench.geometry.rotations import axis_angle_to_rotation_6d
+    from tests.baseline_fixtures import baseline_dataset
+
+    root = baseline_dataset(tmp_path / "data", T=12)
+    lib = ObjectLibrary(root)
+    seqs = [read_grab(f) for f in list_sequences(root)[:2]]
+    data = [SeqData(s, lib) for s in seqs]
+    terms = ContactTerms(data, lib, n_vertices=64)
+    rows = np.arange(sum(len(d.pose) for d in data))
+    pose6 = torch.as_tensor(axis_angle_to_rotation_6d(np.concatenate([d.pose for d in data])),
+                            dtype=torch.float32)
+    got = terms.signed_distance(pose6, rows).numpy()  # (N, 64)
+    at = 0
+    for seq, d in zip(seqs, data, strict=True):
+        world = U.seq_vertices(seq, "right")[:, U.vertex_subset(terms.hand.hand, 64)]
+        local = np.einsum("tji,tkj->tki", d.obj_rot, world - d.obj_pos[:, None])
+        want = lib.field(seq.obj_name).signed_distance(local)
+        near = np.abs(want) < 0.02
+        np.testing.assert_allclose(got[at:at + len(d.pose)][near], want[near], atol=1e-3)
+        at += len(d.pose)
+    prox, pen = terms(pose6, pose6, rows)
+    assert prox.item() == 0.0 and pen.item() < 1e-3
