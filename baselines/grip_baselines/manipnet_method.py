@@ -45,7 +45,7 @@ class ManipNetTrainConfig:
     batch_size: int = 256
     lr: float = 1e-3
     weight_decay: float = 0.0
-    max_sequences: int = 60  # train files read (0 = all); every frame of each is used
+    max_sequences: int = 0  # train files read (0 = all); every frame of each is used
     loss_vertices: int = 256
     w_vertex: float = 100.0  # vertex L1 in m -> read in cm
     # Axis-angle noise (rad) on the teacher-forced previous pose: with slowly changing
