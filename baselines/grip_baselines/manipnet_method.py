@@ -195,13 +195,14 @@ def _scheduled(net, data, feats, cfg: ManipNetConfig, share, rng):
     return feats
 
 
-def _loss(net, feats, target, idx, hand, vids, cfg, contact: ContactTerms | None = None):
+def _loss(net, feats, target, idx, hand: U.SubsetHand, cfg, contact: ContactTerms | None = None):
+    """Pose L2 + vertex L1 over ``hand``'s vertex subset (+ the contact terms)."""
     pred = net(*(x[idx] for x in feats))  # (B, 15, 6)
     loss = (pred - target[idx]).pow(2).mean()
     aa = lambda p: rotation_6d_to_axis_angle(p)  # noqa: E731
-    v_pred = hand(None, aa(pred), None)[0][:, vids]
+    v_pred = hand(None, aa(pred), None)[0]
     with torch.no_grad():
-        v_gt = hand(None, aa(target[idx]), None)[0][:, vids]
+        v_gt = hand(None, aa(target[idx]), None)[0]
     loss = loss + cfg.w_vertex * (v_pred - v_gt).abs().mean()
     if contact is not None:
         prox, pen = contact(pred, target[idx], idx)
@@ -229,7 +230,7 @@ def train_manipnet(name, data_dir, cfg: ManipNetTrainConfig, seed, progress):
     data, feats, target, owner = _build(seqs, library, ncfg, cfg.prev_noise, rng)
     U.log(progress, name, f"{len(owner)} frames of {len(seqs)} sequences")
     hand = U.hand_model("right")
-    vids = U.vertex_subset(hand, cfg.loss_vertices)
+    vhand = U.SubsetHand(hand, U.vertex_subset(hand, cfg.loss_vertices))  # skin only those
     contact = (ContactTerms(data, library, cfg.contact_vertices)
                if cfg.w_proximity or cfg.w_penetration else None)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -240,7 +241,7 @@ def train_manipnet(name, data_dir, cfg: ManipNetTrainConfig, seed, progress):
         net.train()
         total = 0.0
         for idx in U.batches(len(owner), cfg.batch_size, rng):
-            loss = _loss(net, feats, target, idx, hand, vids, cfg, contact)
+            loss = _loss(net, feats, target, idx, vhand, cfg, contact)
             opt.zero_grad()
             loss.backward()
             opt.step()
