@@ -202,11 +202,12 @@ class Cache:
         prefix = f"{socket.gethostname()}__{os.getpid()}__{key}__"
         return Path(tempfile.mkdtemp(prefix=prefix, dir=base))
 
-    def clean_stale(self) -> int:
+    def clean_stale(self, own: bool = False) -> int:
         """Remove temp folders left by killed writers on this host; returns how many.
 
         Temp folders of live processes (a parallel worker) and of other hosts sharing the
-        folder are left alone: they may still be renamed into place.
+        folder are left alone: they may still be renamed into place. ``own``: this process's
+        too (it is stopping, so none of them will be).
         """
         base = self.root / _TMP
         if not base.is_dir():
@@ -216,7 +217,8 @@ class Cache:
             parts = d.name.split("__")
             if len(parts) < 3 or parts[0] != host or not parts[1].isdigit():
                 continue
-            if not _pid_alive(int(parts[1])):
+            pid = int(parts[1])
+            if (own and pid == os.getpid()) or not _pid_alive(pid):
                 shutil.rmtree(d, ignore_errors=True)
                 removed += 1
         return removed

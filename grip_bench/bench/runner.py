@@ -1241,8 +1241,13 @@ def run(cfg: RunConfig) -> RunState:
 
     t0 = time.perf_counter()
     st = start(cfg)
-    for name, kind, fn in STAGE_FUNCTIONS:
-        run_stage(st, name, kind, fn)
+    try:
+        for name, kind, fn in STAGE_FUNCTIONS:
+            run_stage(st, name, kind, fn)
+    except KeyboardInterrupt:
+        # a signal between a unit's temp folder and its cleanup must not leave the folder
+        st.cache.clean_stale(own=True)
+        raise
     stage_report(st)
     st.stage_times["total"] = round(time.perf_counter() - t0, 3)
     write_manifest(cfg.out / "manifest.json", run_manifest(st))

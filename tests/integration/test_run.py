@@ -285,7 +285,7 @@ def test_killed_run_resumes_to_identical_results(finished, tiny, tmp_path, capsy
     out = tmp_path / "b"
     # SIGTERM: a clean stop (exit 130) that leaves no unfinished unit behind
     assert _stop_after(_start(tiny, out), out, 2, signal.SIGTERM) == 130
-    assert not any((out / "cache" / ".tmp").iterdir())
+    assert not any((out / "cache" / ".tmp").iterdir()), list((out / "cache" / ".tmp").iterdir())
     # SIGKILL in the middle of the predictions: no cleanup at all
     done = len(_units(out))
     assert _stop_after(_start(tiny, out), out, done + 5, signal.SIGKILL) == -signal.SIGKILL

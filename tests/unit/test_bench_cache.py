@@ -107,8 +107,11 @@ def test_live_writers_temp_is_kept(tmp_path):
     other_host = tmp_path / ".tmp" / f"elsewhere__1__u-{'0' * 64}__abc"
     live.mkdir(parents=True)
     other_host.mkdir()
-    assert Cache(tmp_path).removed_stale == 0
+    cache = Cache(tmp_path)
+    assert cache.removed_stale == 0
     assert live.is_dir() and other_host.is_dir()
+    assert cache.clean_stale(own=True) == 1  # a stopping run drops its own, never another host's
+    assert not live.exists() and other_host.is_dir()
 
 
 def test_summary_counts_first_lookup(tmp_path):
