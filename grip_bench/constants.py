@@ -159,14 +159,10 @@ MANIPNET_VOXEL_CENTER = (-0.07, -0.03, 0.0)
 MANIPNET_DIST_CLIP = 0.1  # m; signed distances are clipped to +-this before the network
 
 # --- grip pipeline ---
+ANET_CHUNK = 16  # offline ANet: output frames per piece of the recursion (grip.pipeline)
+ANET_WARMUP = 8  # frames each piece starts early, so its start is forgotten by its first output
 AMBIENT_SEED = 0  # the one fixed hemisphere sample shared by training and inference
 AMBIENT_MIDDLE_JOINT = 4  # MANO middle1: the hemisphere's centre on the relaxed mean hand
-# Sensor distance field beyond the library's fine grid: a coarse grid wide enough for the
-# 0.2 m hemisphere. Measured on SynthGRAB objects against the exact signed distance:
-# mean |d exp(-5d)| 0.003, max 0.04, 12x faster than the exact path (the library grid
-# with its 3 cm padding plus the bounding-box bound: mean 0.023, max 0.14).
-SENSOR_FIELD_SPACING = 0.01  # m
-SENSOR_FIELD_PADDING = 0.3  # m; beyond it the bounding-box distance (a lower bound) is used
 VOXEL_CELLS = (13, 6, 13)  # voxel ambient grid (x, palm-normal, z) over the hemisphere's box: 1014 cells
 INTERACTION_DISTANCE = 0.02  # m; RNet refines frames whose hand is within this of the object
 RNET_POSE_SIGMA = 0.3  # rad; Gaussian axis-angle noise of RNet's synthetic data (GRIP Sup. 6)
@@ -180,8 +176,11 @@ EVAL_EXACT_BAND = 0.005  # m; grid distances below this (contact, CC, penetratio
 EVAL_MAX_LISTED = 5  # missing / extra sequences named in a mismatch error (then a count)
 
 # --- distance far field ---------------------------------------------------------
-SDF_FAR_SPACING = 0.01  # m; coarse grid for far queries (ambient sensor points reach 0.2 m)
-SDF_FAR_PADDING = 0.3  # m; margin of the coarse grid around the object
+# (spacing, padding) m of the exact-valued grids that answer far="coarse" queries beyond the
+# fine grid, in turn: trilinear error <~ spacing^2 / (4 * distance) (0.2 mm at 3 cm in the
+# first, 1 mm at 10 cm in the second) except across an outer medial axis (~spacing / 4).
+# The proximity sensor (exp(-50 d)) and its mean distance (the future cue) read them.
+SDF_FAR_TIERS = ((0.006, 0.1), (0.025, 0.7))
 
 # --- run ---
 # grip-bench run (grip_bench.bench.runner); profiles' [run] sections override these.

@@ -4,7 +4,9 @@ Training (train split, right hand, every frame of up to ``max_sequences`` sequen
 teacher forcing (the previous finger pose is the ground truth of frame t-1), then
 ``ss_epochs`` epochs of scheduled sampling where a share ``ss_share`` of frames gets the
 model's own prediction of frame t-1 as the previous pose (features recomputed, since the
-distance features depend on it). Loss: 6D pose L2 + finger-vertex L1 (cm).
+distance features depend on it). Loss: 6D pose L2 + finger-vertex L1 (cm), plus, on
+ground-truth contact frames, GRIP's proximity L1 and the summed penetration depth of hand
+vertices (``ContactTerms``, weights ``w_proximity`` and ``w_penetration``).
 
 Prediction: autoregressive over the whole sequence with the input (ground-truth) right
 wrist; the first frame starts from the relaxed mean hand (the input's own fingers are

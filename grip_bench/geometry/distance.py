@@ -316,42 +316,75 @@ class DistanceField:
         )  # fmt: skip
         return vals.view(vol.shape[1], -1).T.numpy(), trusted.view(-1).numpy() < 0.5
 
-    def signed_distance(self, points, far: str = "exact"):
+    def interpolated(self, q: np.ndarray) -> np.ndarray:
+        """The grid's trilinear values ``(N,)`` float64 at points ``(N, 3)`` inside it, without
+        the exact path of unreliable cells (errors up to ~spacing / 4 across a kink): for
+        features that tolerate a millimetre, at a third of ``signed_distance``'s cost."""
+        u = torch.from_numpy(np.ascontiguousarray(q)).to(torch.float32).mul_(self._scale).add_(self._shift)
+        vals = F.grid_sample(self._vol, u.view(1, 1, 1, -1, 3), align_corners=True)
+        return vals.view(-1).numpy().astype(np.float64)
+
+    def signed_distance(self, points, far: str = "exact", exact_cells: bool = True):
         """Signed distance ``(...)`` (m, negative inside) of points ``(..., 3)``, grid + exact fallback.
 
         Points beyond the fine grid (more than ``padding`` from the object) are answered by
-        ``far``: ``"exact"`` (libigl, ~5 us a point); ``"bound"``, their distance to the
+        ``far``: ``"exact"`` (libigl, ~1 us a point); ``"bound"``, their distance to the
         object's bounding box, a lower bound of the true distance that is exact enough for
-        contact tests and safe for sphere tracing; ``"coarse"``, a lazily built exact grid of
-        ``SDF_FAR_SPACING`` cells reaching ``SDF_FAR_PADDING`` around the object (a few mm
-        of error at most, plenty for decaying sensor features such as ``exp(-5 d)``).
+        contact tests and safe for sphere tracing; ``"coarse"``, the first of the
+        ``SDF_FAR_TIERS`` grids (exact node values, built lazily and cached) that holds the
+        point, exact beyond the last: ~10x cheaper than exact, sub-mm error beyond the fine
+        grid (trilinear over cells at least 3 cm from the surface), for the sensor features.
+        ``exact_cells=False`` (with ``"coarse"`` only) also reads the fine grid's unreliable
+        cells by interpolation (errors up to ~spacing / 4 there, 3x cheaper).
         """
         if far not in ("exact", "bound", "coarse"):
             raise ValueError(f"far must be 'exact', 'bound' or 'coarse', got {far!r}")
+        if not exact_cells and far != "coarse":
+            raise ValueError("exact_cells=False needs far='coarse'")
         p, lead, back = _to_numpy(points)
         out = np.empty(len(p))
         for s in range(0, len(p), _CHUNK):
             q = p[s : s + _CHUNK]
-            d, exact = self._grid(q, self._vol)
-            d = d[:, 0].astype(np.float64)
-            if far != "exact" and exact.any():
-                outside = self._outside_grid(q)
-                if far == "bound":
-                    d[outside] = self._box_distance(q[outside])
-                else:
-                    d_far, beyond = self._far_grid().query(q[outside])
-                    d[outside] = d_far
-                    outside[outside] = ~beyond  # beyond the far grid too: exact
-                exact &= ~outside
-            if exact.any():
-                d[exact] = self._exact_values(q[exact])
-            out[s : s + _CHUNK] = d
+            out[s : s + _CHUNK] = (self._tiered(q, exact_cells) if far == "coarse"
+                                   else self._near_first(q, far))
         return back(out.reshape(lead))
 
-    def _far_grid(self) -> _FarGrid:
-        """The coarse far-field grid, built on first use (~1 s per object)."""
+    def _near_first(self, q: np.ndarray, far: str) -> np.ndarray:
+        """``signed_distance`` of ``q (N, 3)`` for far ``"exact"`` or ``"bound"``."""
+        d, exact = self._grid(q, self._vol)
+        d = d[:, 0].astype(np.float64)
+        if far == "bound" and exact.any():
+            outside = self._outside_grid(q)
+            d[outside] = self._box_distance(q[outside])
+            exact &= ~outside
+        if exact.any():
+            d[exact] = self._exact_values(q[exact])
+        return d
+
+    def _tiered(self, q: np.ndarray, exact_cells: bool) -> np.ndarray:
+        """``signed_distance(q, far="coarse")`` ``(N,)``: the fine grid only reads the points it
+        holds (the sensor workload is mostly far points), the far tiers the rest in turn."""
+        out = np.empty(len(q))
+        rest = np.flatnonzero(self._outside_grid(q))
+        if len(rest) < len(q):
+            inside = np.ones(len(q), bool)
+            inside[rest] = False
+            near = q[inside]
+            out[inside] = self._near_first(near, "exact") if exact_cells else self.interpolated(near)
+        for tier in self._far_tiers():
+            if not len(rest):
+                break
+            d, beyond = tier.query(q[rest])
+            out[rest[~beyond]] = d[~beyond]
+            rest = rest[beyond]
+        if len(rest):
+            out[rest] = self._exact_values(q[rest])
+        return out
+
+    def _far_tiers(self) -> list[_FarGrid]:
+        """The far-field grids of ``SDF_FAR_TIERS``, built on first use (~1 s per object)."""
         if getattr(self, "_far", None) is None:
-            self._far = _FarGrid.build(self, constants.SDF_FAR_SPACING, constants.SDF_FAR_PADDING)
+            self._far = [_FarGrid.build(self, h, pad) for h, pad in constants.SDF_FAR_TIERS]
         return self._far
 
     def grid_signed_distance(self, points: torch.Tensor) -> torch.Tensor:
@@ -497,7 +530,11 @@ class _FarGrid:
 
     def query(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Interpolated distances ``(N,)`` and a mask ``(N,)`` of points beyond this grid."""
-        beyond = ((p < self.origin) | (p > self._hi)).any(axis=1)
+        beyond = p[:, 0] < self.origin[0]  # column by column, as DistanceField._outside_grid
+        beyond |= p[:, 0] > self._hi[0]
+        for k in (1, 2):
+            beyond |= p[:, k] < self.origin[k]
+            beyond |= p[:, k] > self._hi[k]
         u = torch.from_numpy(p).to(torch.float32).mul_(self._scale).add_(self._shift)
         vals = F.grid_sample(self._vol, u.view(1, 1, 1, -1, 3), align_corners=True)
         return vals.view(-1).numpy().astype(np.float64), beyond

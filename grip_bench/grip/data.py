@@ -379,6 +379,7 @@ def recompute_proximity(fs: FrameSet, idx: np.ndarray, poses_6d: np.ndarray, lib
                                     fs.wrist_transl[f].astype(float), float(fs.hand_scale[f[0]]))
         # GRAB's row-vector convention world = local @ R + t inverts to (world - t) @ R.T
         local = np.einsum("thnj,tij->thni", pts - fs.obj_transl[f][:, None, None], fs.obj_rot[f].astype(float))
-        sd = library.field(str(fs.objects[s])).signed_distance(local, far="exact")
+        # far="coarse": the distances of sensors.signed_object_distance, as at inference
+        sd = library.field(str(fs.objects[s])).signed_distance(local, far="coarse")
         out[g] = attention(np.maximum(sd, 0.0), C.PROXIMITY_DECAY)
     return out

@@ -228,6 +228,29 @@ def test_far_bound_is_a_lower_bound_outside_and_exact_inside(fields):
         field.signed_distance(near, far="nope")
 
 
+@pytest.mark.parametrize("shape", ["box", "sphere"])
+def test_far_tiers_meet_the_trilinear_bound(fields, shape):
+    """Outside a convex mesh the SDF's Hessian is at most 1/d in two directions, so trilinear
+    interpolation over cells of spacing h errs by at most h^2 / (4 d'), d' the distance of the
+    cell's nearest corner; each point is read from the tier that holds it, exact beyond."""
+    field = fields[shape]
+    rng = np.random.default_rng(6)
+    u = rng.normal(size=(6000, 3))
+    pts = u / np.linalg.norm(u, axis=1, keepdims=True) * rng.uniform(0.03, 1.2, (6000, 1))
+    pts = pts[field._outside_grid(pts)]
+    got = field.signed_distance(pts, far="coarse")
+    exact = field.exact_signed_distance(pts)
+    bound = np.full(len(pts), 0.0)
+    rest = np.ones(len(pts), bool)
+    for (h, _), tier in zip(constants.SDF_FAR_TIERS, field._far_tiers(), strict=True):
+        held = rest & np.all((pts >= tier.origin) & (pts <= tier._hi), axis=1)
+        bound[held] = h**2 / (4 * np.maximum(exact[held] - h * np.sqrt(3), 1e-3))
+        rest &= ~held
+    assert rest.any() and (~rest).sum() > 1000  # every tier and the exact remainder are used
+    np.testing.assert_array_equal(got[rest], exact[rest])
+    assert np.all(np.abs(got - exact) <= bound + 2e-6)  # + float32 grid rounding
+
+
 def test_far_coarse_is_close_to_exact_beyond_the_grid(fields):
     field = fields["mug"]
     rng = np.random.default_rng(5)

@@ -152,8 +152,10 @@ def test_distance_field_is_identical_cached_or_built(cache_dir, monkeypatch):
     for far in ("exact", "bound", "coarse"):
         np.testing.assert_array_equal(built.signed_distance(p, far=far), warm.signed_distance(p, far=far))
     np.testing.assert_array_equal(built.gradient(p), warm.gradient(p))
-    assert len(_entries(cache_dir, "sdf_far")) == 1  # the lazily built far grid is cached too
-    np.testing.assert_array_equal(built._far_grid()._vol, DistanceField(mesh)._far_grid()._vol)
+    n_tiers = len(built._far_tiers())
+    assert len(_entries(cache_dir, "sdf_far")) == n_tiers  # the lazily built far grids are cached too
+    for a, b in zip(built._far_tiers(), DistanceField(mesh)._far_tiers(), strict=True):
+        np.testing.assert_array_equal(a._vol, b._vol)
 
 
 def test_gradients_are_read_only_when_needed(cache_dir):
