@@ -5,7 +5,8 @@ CNet on frame pairs, proximity recomputed on CNet's hands, RNet on interaction f
 both hands. Weights are random (speed does not depend on them); the residual ANet head
 is zeroed as in training so the wrists stay on the sequence.
 
-- offline: 1 or 16 copies of a 120-frame grasping sequence per call -> frames/s
+- offline: 1 or 16 copies of a 120-frame grasping sequence per call, or one 300-frame
+  sequence (what ``grip-bench predict`` does: one sequence per call) -> frames/s
   (``extra_info``); ANet's recursion runs in overlapping pieces side by side, and with 16
   sequences ANet, CNet and RNet are batched across them too;
 - precision: fp32 (what the tables use) and bf16 (``--precision bf16``);
@@ -43,14 +44,24 @@ def paper_nets() -> dict:
     return {k: n.eval() for k, n in nets.items()}
 
 
-@pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    root = tmp_path_factory.mktemp("pipeline")
-    seq = read_grab(grasp_dataset(root, T=T)[0])
+def _scene(root, n_frames: int):
+    seq = read_grab(grasp_dataset(root, T=n_frames)[0])
     lib = ObjectLibrary(root)
     lib.field(seq.obj_name)  # the distance field is built once per object, outside the timing
     torch.set_num_threads(os.cpu_count() or 1)  # the fixture's grasp search pins one thread
     return seq, lib
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    return _scene(tmp_path_factory.mktemp("pipeline"), T)
+
+
+@pytest.fixture(scope="module")
+def long_scene(tmp_path_factory):
+    """One 300-frame sequence: 10 s at 30 fps, about a GRAB sequence (SynthGRAB's test split
+    averages 270 frames)."""
+    return _scene(tmp_path_factory.mktemp("pipeline_long"), 300)
 
 
 def _flops() -> float:
@@ -71,6 +82,19 @@ def test_bench_pipeline_offline(benchmark, scene, n_seqs, precision):
     benchmark.extra_info.update(frames=frames, threads=torch.get_num_threads(), net_flops_per_frame=_flops())
     if benchmark.stats is not None:
         benchmark.extra_info["frames_per_s"] = frames / benchmark.stats.stats.mean
+
+
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_bench_pipeline_offline_one_long_sequence(benchmark, long_scene, precision):
+    """``grip-bench predict``'s setting: one sequence per call, its frames batched."""
+    seq, lib = long_scene
+    pipe = GripPipeline(paper_nets(), Options(Variant(), precision=precision))
+    pipe.run(seq, lib)  # warm-up
+    out = benchmark.pedantic(lambda: pipe.run(seq, lib), rounds=3, iterations=1)
+    assert out.n_frames == seq.n_frames
+    benchmark.extra_info.update(frames=seq.n_frames, threads=torch.get_num_threads())
+    if benchmark.stats is not None:
+        benchmark.extra_info["frames_per_s"] = seq.n_frames / benchmark.stats.stats.mean
 
 
 @pytest.mark.parametrize("precision", ["fp32", "bf16"])
