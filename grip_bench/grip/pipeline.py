@@ -2,8 +2,8 @@
 
 1. **ANet** denoises both arms autoregressively (current frame = the frame it denoised
    last, plus the next 5 noisy frames); offline, in overlapping pieces run side by side
-   (``denoise_arms_many``: the same values, fewer sequential steps). The wrists follow by forward kinematics of the
-   procedural body: the rigid change of each FK wrist (denoised vs input arms) is applied
+   (``denoise_arms_many``: the same values, fewer sequential steps). The wrists follow
+   by forward kinematics of the procedural body: the rigid change of each FK wrist (denoised vs input arms) is applied
    to the input hand wrist, which for SynthGRAB (hand wrist = body wrist) is exactly the
    denoised body's wrist. Without ANet (``use_anet=False``) the input wrists are used.
 2. **Stage one**: ambient + mean-hand proximity at those wrists, future cue -> **CNet**
