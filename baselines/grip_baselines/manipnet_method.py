@@ -22,9 +22,10 @@ import numpy as np
 import torch
 
 from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.constants import MANIPNET_FUTURE, MANIPNET_PAST, MANIPNET_VOXEL_RES, PROXIMITY_DECAY
+from grip_bench.constants import MANIPNET_FUTURE, MANIPNET_PAST, MANIPNET_VOXEL_RES
 from grip_bench.errors import InputError
 from grip_bench.geometry.rotations import axis_angle_to_rotation_6d, rotation_6d_to_axis_angle
+from grip_bench.grip.losses import penetration_depth, proximity_attention, proximity_l1
 
 from . import common as U
 from .manipnet import ManipNetConfig, manipnet_features
@@ -166,8 +167,7 @@ class ContactTerms:
         sd = self.signed_distance(pred6[keep], rows[keep])
         with torch.no_grad():
             gt = self.signed_distance(target6[keep], rows[keep])
-        att = lambda d: torch.exp(-PROXIMITY_DECAY * torch.relu(d))  # noqa: E731
-        return (att(sd) - att(gt)).abs().mean(), torch.relu(-sd).sum(-1).mean()
+        return proximity_l1(proximity_attention(sd), proximity_attention(gt)), penetration_depth(sd)
 
 
 def _predict_all(net, feats, bs=1024) -> torch.Tensor:

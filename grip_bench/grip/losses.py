@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import torch
 
+from grip_bench import constants as C
 from grip_bench.grip.ltc import check_mode
 
 HandFn = Callable[[torch.Tensor], torch.Tensor]  # poses (..., 2, J, 6) -> vertices (..., 2, V, 3)
@@ -52,6 +53,11 @@ def pose_l2(pred: torch.Tensor, gt: torch.Tensor, space: str = "6d") -> torch.Te
 
         pred, gt = rotation_6d_to_matrix(pred), rotation_6d_to_matrix(gt)
     return (pred - gt).pow(2).mean()
+
+
+def proximity_attention(signed_distance: torch.Tensor) -> torch.Tensor:
+    """GRIP Eq. 1 on signed distances (m): ``exp(-50 d)``, 1 inside the object."""
+    return torch.exp(-C.PROXIMITY_DECAY * torch.relu(signed_distance))
 
 
 def proximity_l1(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
