@@ -1,3 +1,9 @@
-"""grip-bench: evaluation and benchmark suite for hand-object interaction motion synthesis."""
+"""grip-bench: evaluation and benchmark suite for hand-object interaction motion synthesis.
 
-__version__ = "0.1.0"
+The package map (layers, who may import whom, where each fact lives) is
+``docs/architecture.md``.
+"""
+
+from .core.version import __version__
+
+__all__ = ["__version__"]

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import constants as C
-from .errors import InputError
+from .core import constants as C
+from .core.errors import InputError
 
 NET_SIDES = ("left", "right")  # hand order of the (T, 2, ...) arrays
 AMBIENT_KINDS = ("distance", "voxel", "none")
@@ -93,7 +93,9 @@ def mean_hand_points(side: str, scale: float = 1.0) -> np.ndarray:
 
 
 def to_world(local: np.ndarray, rot: np.ndarray, transl: np.ndarray) -> np.ndarray:
-    """Hand-frame points ``(N, 3)`` -> world ``(T, N, 3)`` for wrists ``rot (T, 3, 3)``, ``transl (T, 3)``.
+    """Hand-frame points ``(N, 3)`` -> world ``(T, N, 3)``.
+
+    For wrists ``rot (T, 3, 3)``, ``transl (T, 3)``.
 
     ``einsum("tij,nj->tni", rot, local) + transl[:, None]`` computed one coordinate plane at a
     time (3x faster); the products are summed as ``(j0 + j2) + j1``, einsum's order, so the
@@ -135,7 +137,10 @@ def signed_object_distance(library, seq, world: np.ndarray, exact_cells: bool = 
 
 
 def object_distance(library, seq, world: np.ndarray, exact_cells: bool = True) -> np.ndarray:
-    """Unsigned distance ``(T, N)`` (m, 0 inside) of world points ``(T, N, 3)`` to ``seq``'s object."""
+    """Unsigned distance ``(T, N)`` (m, 0 inside) to ``seq``'s object.
+
+    world: points ``(T, N, 3)``.
+    """
     return np.maximum(signed_object_distance(library, seq, world, exact_cells), 0.0)
 
 
@@ -156,7 +161,9 @@ def ambient_feature(library, seq, rot, transl, side: str, kind: str = "distance"
         d = object_distance(library, seq, to_world(ambient_points(side, scale), rot, transl), False)
         return attention(d, C.AMBIENT_DECAY).astype(np.float32)
     if kind == "voxel":
-        sd = signed_object_distance(library, seq, to_world(voxel_points(side, scale), rot, transl), False)
+        sd = signed_object_distance(
+            library, seq, to_world(voxel_points(side, scale), rot, transl), False
+        )
         return (sd < 0).astype(np.float32)
     raise InputError(f"unknown ambient kind {kind!r} (known: distance, voxel)", "ambient")
 
@@ -168,7 +175,9 @@ def proximity_feature(library, seq, points: np.ndarray) -> tuple[np.ndarray, np.
     return attention(d, C.PROXIMITY_DECAY).astype(np.float32), d
 
 
-def future_cue(mean_dist: np.ndarray, n: int, fps: float = C.FPS, online: bool = False) -> np.ndarray:
+def future_cue(
+    mean_dist: np.ndarray, n: int, fps: float = C.FPS, online: bool = False
+) -> np.ndarray:
     """Future cue ``(T, 2 * 2 * n)`` float32 from per-hand mean distances ``(T, 2)`` (m).
 
     Layout per frame: hand-major, then k = 1..n, then (distance m, rate m/s) of frame t+k,
@@ -205,7 +214,9 @@ def stage_one(library, seq, wrists: dict | None = None, ambient: str = "distance
     wrists (ANet's); ambient: ``"distance"``, ``"voxel"`` or ``"none"`` (no ambient).
     """
     if ambient not in AMBIENT_KINDS:
-        raise InputError(f"unknown ambient kind {ambient!r} (known: {list(AMBIENT_KINDS)})", "ambient")
+        raise InputError(
+            f"unknown ambient kind {ambient!r} (known: {list(AMBIENT_KINDS)})", "ambient"
+        )
     amb, prox, mean = [], [], []
     scale = seq.hand_scale or 1.0
     for side in NET_SIDES:
@@ -217,10 +228,14 @@ def stage_one(library, seq, wrists: dict | None = None, ambient: str = "distance
     return StageOne(np.stack(amb, 1), np.stack(prox, 1), np.stack(mean, 1))
 
 
-def ambient_sensor(library, seq, wrists: dict | None = None, ambient: str = "distance") -> np.ndarray:
+def ambient_sensor(
+    library, seq, wrists: dict | None = None, ambient: str = "distance"
+) -> np.ndarray:
     """``stage_one(...).ambient`` ``(T, 2, A)`` alone, without the proximity sensor's distances."""
     if ambient not in AMBIENT_KINDS:
-        raise InputError(f"unknown ambient kind {ambient!r} (known: {list(AMBIENT_KINDS)})", "ambient")
+        raise InputError(
+            f"unknown ambient kind {ambient!r} (known: {list(AMBIENT_KINDS)})", "ambient"
+        )
     amb = []
     for side in NET_SIDES:
         rot, transl = wrists[side] if wrists else wrist_frames(seq, side)

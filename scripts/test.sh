@@ -10,4 +10,8 @@ VENV=${VENV:-.venv}
 python -m pip install -q --upgrade pip
 python -m pip install -q torch==2.13.0
 python -m pip install -q -e ".[dev,smplx]"
+# the habits CI keeps: ruff (line length included) and the layer contract of
+# docs/architecture.md (pyproject.toml [tool.importlinter]), before the tests
+ruff check grip_bench baselines tests tools
+lint-imports --no-cache
 python -m pytest -q -p no:cacheprovider "$@"

@@ -22,7 +22,9 @@ SPECS = (
 )
 
 
-def baseline_dataset(root: Path, T: int = 24, specs=SPECS) -> Path:
+def baseline_dataset(
+    root: Path, T: int = 24, specs: tuple[tuple[str, str, str, bool, str], ...] = SPECS
+) -> Path:
     """Write ``DATA/`` (grab/, meshes, splits.json, manifest.json); returns ``root``."""
     root = Path(root)
     splits = {"train": [], "val": [], "test": []}

@@ -19,7 +19,7 @@ if "GRIP_BENCH_CACHE" not in os.environ:
 @pytest.fixture
 def one_thread():
     """Torch on one thread for the test (``pytestmark = pytest.mark.usefixtures("one_thread")``)."""
-    from grip_bench.threads import single_thread
+    from grip_bench.core.threads import single_thread
 
     with single_thread():
         yield

@@ -43,7 +43,9 @@ def object_and_grasps(family: str, seed: int = 0):
     for side, sx in (("right", -1.0), ("left", 1.0)):
         dirs = np.array([[sx * np.sin(a) * np.cos(e), np.sin(e), -np.cos(a) * np.cos(e)]
                          for a in np.radians([60, 90]) for e in np.radians([0, 30])])
-        grasps[side] = gs.search(side, dirs, np.array([0.0, 0.0, 1.0]), np.random.default_rng(seed + 1))
+        grasps[side] = gs.search(
+            side, dirs, np.array([0.0, 0.0, 1.0]), np.random.default_rng(seed + 1)
+        )
     return obj, grasps
 
 
@@ -74,8 +76,10 @@ def grasp_sequence(family: str, sbj: str, intent: str, bimanual: bool, T: int) -
     """One sequence of ``T`` frames (float64 params) over the cached grasps of ``family``."""
     obj, grasps = object_and_grasps(family)
     R_o, p_o = _object_track(T, obj.rest_height)
-    hands = {"right": _hand_track(grasps["right"], R_o, p_o, T),
-             "left": _hand_track(grasps["left"], R_o, p_o, T) if bimanual else _parked_hand("left", T)}
+    hands = {
+        "right": _hand_track(grasps["right"], R_o, p_o, T),
+        "left": _hand_track(grasps["left"], R_o, p_o, T) if bimanual else _parked_hand("left", T),
+    }
     z3 = np.zeros((T, 3))
     body = make_body_params(z3, np.zeros((T, 63)), np.tile([0.0, 0.9, 0.0], (T, 1)),
                             hands["left"]["hand_pose"], hands["right"]["hand_pose"])
@@ -105,5 +109,7 @@ def grasp_dataset(root: Path, specs=DEFAULT_SPECS, T: int = 24, split: str = "te
     splits = {"train": [], "val": [], "test": []}
     splits[split] = objects
     write_splits(root, splits)
-    (root / "manifest.json").write_text(json.dumps({"generator": "test-fixture", "dataset": "fixture"}))
+    (root / "manifest.json").write_text(
+        json.dumps({"generator": "test-fixture", "dataset": "fixture"})
+    )
     return files

@@ -55,7 +55,9 @@ def make_sequence(T: int = 40, *, seed: int = 0, obj_name: str = "mug", intent: 
     lhand = make_hand_params(_poses(rng, T, 3, 1.0, dtype), _poses(rng, T, 45, dtype=dtype),
                              _transl(rng, T, (0.3, 1.0, 0.3), dtype))
     obj = make_rigid_params(_poses(rng, T, 3, 1.0, dtype), _transl(rng, T, (0.0, 0.8, 0.4), dtype))
-    table = make_rigid_params(np.zeros((T, 3), dtype), np.tile(np.array([0, 0.75, 0.4], dtype), (T, 1)))
+    table = make_rigid_params(
+        np.zeros((T, 3), dtype), np.tile(np.array([0, 0.75, 0.4], dtype), (T, 1))
+    )
     labels = np.zeros((T, n_obj_verts), dtype=np.int32)
     grasp = slice(T // 4, 3 * T // 4)
     labels[grasp, 0] = contact_label("right_index3")

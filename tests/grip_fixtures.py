@@ -33,7 +33,9 @@ def holding_sequence(T: int, seed: int, obj: str, intent: str, sbj: str):
 def write_grip_dataset(root: Path, T: int = 24) -> Path:
     root = Path(root)
     for i, (sbj, obj, intent) in enumerate(SPECS):
-        write_grab(holding_sequence(T, i, obj, intent, sbj), root / "grab" / sbj / f"{obj}_{intent}_1.npz")
+        write_grab(
+            holding_sequence(T, i, obj, intent, sbj), root / "grab" / sbj / f"{obj}_{intent}_1.npz"
+        )
         mesh = object_mesh_path(root, obj)
         if not mesh.exists():
             mesh.parent.mkdir(parents=True, exist_ok=True)

@@ -40,7 +40,9 @@ def grid_volume(hand_v, hand_f, obj_v, obj_f, pitch: float = PITCH, rotation=Non
     if np.any(hi <= lo):
         return 0.0
     shape = np.ceil((hi - lo) / pitch).astype(int)
-    both = inside_grid(lo, shape, pitch, obj_v, obj_f) & inside_grid(lo, shape, pitch, hand_v, hand_f)
+    both = inside_grid(lo, shape, pitch, obj_v, obj_f) & inside_grid(
+        lo, shape, pitch, hand_v, hand_f
+    )
     return float(both.sum() * pitch**3)
 
 
@@ -54,7 +56,9 @@ def inside_grid(lo, shape, pitch: float, v, f, block: int = 4) -> np.ndarray:
     import igl
 
     nb = -(-shape // block)
-    mids = lo + pitch * block * (np.stack(np.meshgrid(*map(np.arange, nb), indexing="ij"), -1) + 0.5)
+    mids = lo + pitch * block * (
+        np.stack(np.meshgrid(*map(np.arange, nb), indexing="ij"), -1) + 0.5
+    )
     sd = igl.signed_distance(mids.reshape(-1, 3), v, f)[0].reshape(nb)
     reach = pitch * (block / 2) * np.sqrt(3)  # farthest centre of a block from its middle
     out = np.repeat(np.repeat(np.repeat(sd < 0, block, 0), block, 1), block, 2)
@@ -96,7 +100,12 @@ def pushed_pairs(data_dir: Path, n_pairs: int, seed: int):
         direction = (closest - touch).mean(0)
         direction /= np.linalg.norm(direction)
         push = rng.uniform(*PUSH)
-        yield f"{seq.name}:{side}:{t}+{push * 1e3:.1f}mm", v + push * direction, poser.faces(side), lib.mesh(seq.obj_name)
+        yield (
+            f"{seq.name}:{side}:{t}+{push * 1e3:.1f}mm",
+            v + push * direction,
+            poser.faces(side),
+            lib.mesh(seq.obj_name),
+        )
 
 
 def cross_check(data_dir: Path, n_pairs: int = 60, seed: int = 0) -> list[dict]:
@@ -142,7 +151,9 @@ def summarise(rows: list[dict]) -> tuple[str, bool]:
                 refined += 1
                 flag = f"  0.5 mm grid: {fine:+.2%} " + ("ok" if abs(fine) <= TOLERANCE else "FAIL")
                 ok &= abs(fine) <= TOLERANCE
-        lines.append(f"{r['pair']:<48} {r['exact'] * 1e6:>10.4f} {r['grid'] * 1e6:>10.4f} {rel:>+9.2%}{flag}")
+        lines.append(
+            f"{r['pair']:<48} {r['exact'] * 1e6:>10.4f} {r['grid'] * 1e6:>10.4f} {rel:>+9.2%}{flag}"
+        )
     te = np.mean([r["t_exact"] for r in rows]) * 1e3
     tg = np.mean([r["t_grid"] for r in rows]) * 1e3
     lines.append(f"\n{len(rows)} pairs, {big} above {MIN_VOLUME * 1e6:g} cm3; |rel diff| there: "
@@ -154,7 +165,9 @@ def summarise(rows: list[dict]) -> tuple[str, bool]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--data", type=Path, help="SynthGRAB folder (default: generate a tiny one)")
     ap.add_argument("--pairs", type=int, default=60)
     ap.add_argument("--seed", type=int, default=0)

@@ -32,7 +32,9 @@ def _draw(ax, verts: np.ndarray, faces: np.ndarray, colors: np.ndarray, view) ->
     tri = np.stack([tri[..., 0], -tri[..., 2], tri[..., 1]], -1)
     n = np.stack([n[:, 0], -n[:, 2], n[:, 1]], -1)
     shade = 0.25 + 0.75 * np.clip(n @ eye, 0.0, 1.0)  # headlight
-    poly = Poly3DCollection(tri, facecolors=colors * shade[:, None], edgecolors=colors * shade[:, None], linewidth=0.3)
+    poly = Poly3DCollection(
+        tri, facecolors=colors * shade[:, None], edgecolors=colors * shade[:, None], linewidth=0.3
+    )
     ax.add_collection3d(poly)
     lo, hi = verts.min(0), verts.max(0)
     c, r = (lo + hi) / 2, (hi - lo).max() / 2
@@ -46,7 +48,9 @@ def _draw(ax, verts: np.ndarray, faces: np.ndarray, colors: np.ndarray, view) ->
 # extra poses for eyeballing the skinning: a fist (all flexion limits) and a spread hand
 _EXTRA = {
     "fist": lambda h: h.limit_pose(torch.tensor([[[1, 0, 0]] * 15]).expand(1, 15, 3)),
-    "spread": lambda h: h.from_local(torch.tensor([[[0.0, 0.3, 0.0]] * 15], dtype=h.template_vertices.dtype)),
+    "spread": lambda h: h.from_local(
+        torch.tensor([[[0.0, 0.3, 0.0]] * 15], dtype=h.template_vertices.dtype)
+    ),
 }
 
 

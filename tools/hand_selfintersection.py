@@ -20,7 +20,9 @@ import torch
 from grip_bench.bodies.hand import ProceduralHand
 
 
-def overlap_volume(verts: np.ndarray, faces: np.ndarray, n_samples: int, rng: np.random.Generator) -> float:
+def overlap_volume(
+    verts: np.ndarray, faces: np.ndarray, n_samples: int, rng: np.random.Generator
+) -> float:
     """Doubly covered volume of one closed mesh in m^3 (Monte Carlo); verts (V,3), faces (F,3)."""
     lo, hi = verts.min(0), verts.max(0)
     pts = lo + rng.random((n_samples, 3)) * (hi - lo)
@@ -46,7 +48,9 @@ def pose_sets(hand: ProceduralHand, n_random: int, seed: int) -> dict[str, torch
     }
 
 
-def report(n_random: int = 50, seed: int = 0, n_samples: int = 40000, side: str = "right") -> list[dict]:
+def report(
+    n_random: int = 50, seed: int = 0, n_samples: int = 40000, side: str = "right"
+) -> list[dict]:
     """One row per pose set: count, share with overlap > 0.05 cm^3, mean and max overlap (cm^3)."""
     hand = ProceduralHand(side).double()
     rng = np.random.default_rng(seed)
@@ -67,7 +71,10 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=40000)
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args()
-    print(f"{'poses':30s} {'n':>4s} {'share>0.05cm3':>14s} {'mean cm3':>9s} {'max cm3':>8s} {'max %hand':>9s}")
+    print(
+        f"{'poses':30s} {'n':>4s} {'share>0.05cm3':>14s} {'mean cm3':>9s} "
+        f"{'max cm3':>8s} {'max %hand':>9s}"
+    )
     for r in report(a.random, a.seed, a.samples):
         print(f"{r['poses']:30s} {r['n']:4d} {r['share_overlapping']:14.2f} {r['mean_cm3']:9.2f} "
               f"{r['max_cm3']:8.2f} {r['max_pct_of_hand']:9.1f}")

@@ -18,7 +18,9 @@ from grip_bench.geometry.meshes import load_object_mesh
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("sequence", type=Path, help="a .npz sequence inside DATA/grab/s<k>/")
     p.add_argument("--frames", default="0,0.3,0.5,0.8", help="comma-separated frames or fractions")
     p.add_argument("--out", type=Path, required=True, help="PNG to write")

@@ -7,6 +7,7 @@ Lives in the top-level ``baselines/`` folder of the repository and is imported a
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
 # Public names -> submodule. Resolved on first access so that importing the package
 # stays cheap (no torch / igl until a model or feature function is used).
@@ -37,7 +38,7 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     target = _EXPORTS.get(name)
     if target is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -47,5 +48,5 @@ def __getattr__(name: str):
     return value
 
 
-def __dir__():
+def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_EXPORTS))

@@ -15,8 +15,8 @@ import igl
 import numpy as np
 import trimesh
 
-from grip_bench.constants import BPS_N_POINTS, BPS_RADIUS, BPS_SEED
-from grip_bench.errors import InputError
+from grip_bench.core.constants import BPS_N_POINTS, BPS_RADIUS, BPS_SEED
+from grip_bench.core.errors import InputError
 
 __all__ = ["basis_points", "bps_encode", "bps_encode_many", "object_centre"]
 
@@ -58,7 +58,7 @@ def bps_encode(
     centre: np.ndarray | None = None,
     rotations: np.ndarray | None = None,
     return_deltas: bool = False,
-):
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """BPS code of one object, optionally under several rotations about its centre.
 
     mesh: the object in its own frame (m). basis: ``(n, 3)`` offsets from the centre (m).
@@ -89,7 +89,13 @@ def bps_encode(
     return (dist, delta) if return_deltas else dist
 
 
-def bps_encode_many(meshes, basis: np.ndarray, *, rotations=None, return_deltas: bool = False):
+def bps_encode_many(
+    meshes: list[trimesh.Trimesh],
+    basis: np.ndarray,
+    *,
+    rotations: np.ndarray | None = None,
+    return_deltas: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """:func:`bps_encode` stacked over a list of objects: ``(M, n)`` or ``(M, R, n)`` (+ deltas)."""
     out = [bps_encode(m, basis, rotations=rotations, return_deltas=return_deltas) for m in meshes]
     if return_deltas:

@@ -1,36 +1,100 @@
-"""Shared plumbing of the baseline methods: data loading, frames, hands, configs, checkpoints.
+"""Shared plumbing of the baseline methods: data loading, hands, configs, devices, checkpoints.
 
 Conventions (``docs/architecture.md``): metres and radians; object poses follow GRAB's
 row-vector rule ``world = local @ R_row + t``, i.e. the column rotation is ``R_row^T``;
 hand frames are ``world = R_wrist @ local + transl``. The left procedural hand is the
 x-mirror of the right one, so a left hand is brought into the right hand's frame by
-``S = diag(-1, 1, 1)`` on points and ``(ax, -ay, -az)`` on axis-angles.
+``S = diag(-1, 1, 1)`` on points and ``(ax, -ay, -az)`` on axis-angles. The frame
+conventions live in :mod:`grip_bench.core.frames` (re-exported here as ``SIDES``,
+``MIRROR``, ``mirror_pose``, ``object_pose`` for the methods' ``U.`` spelling).
+
+Devices: :func:`resolve_device` turns ``--device`` into a ``torch.device`` (an
+:class:`InputError` for an unknown or unavailable one, never a silent CPU fallback);
+training builds its networks there and :meth:`TrainedMethod.load_checkpoint` moves the
+loaded networks there. Geometry (distance fields, ray casts, BPS) stays numpy on the CPU.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from grip_bench import constants as C
-from grip_bench.checkpoint import load_checkpoint, save_checkpoint
-from grip_bench.errors import InputError
-from grip_bench.threads import single_thread  # noqa: F401  (U.single_thread in the methods)
+from grip_bench.core import constants as C
+from grip_bench.core.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
+from grip_bench.core.errors import InputError
+from grip_bench.core.frames import (  # noqa: F401  (U.SIDES, U.MIRROR, ... in the methods)
+    MIRROR,
+    SIDES,
+    mirror_pose,
+    object_pose,
+    world_to_object,
+)
+from grip_bench.core.threads import single_thread  # noqa: F401  (U.single_thread in the methods)
+from grip_bench.methods.api import TrainContext
 
-SIDES = ("right", "left")
-MIRROR = np.diag([-1.0, 1.0, 1.0])  # right-hand frame <-> left-hand frame
+if TYPE_CHECKING:
+    from grip_bench.bodies.hand import ProceduralHand
+    from grip_bench.data.library import ObjectLibrary
+    from grip_bench.data.sequence import Sequence
+
+Config = TypeVar("Config")
+Device = str | torch.device
+
+# ----------------------------------------------------------------------------- devices
+
+
+def resolve_device(device: Device) -> torch.device:
+    """``--device`` as a ``torch.device``: ``cpu``, ``cuda`` or ``cuda:N`` (or ``mps``).
+
+    An unknown device, or one this machine does not have, is an :class:`InputError`: a
+    run asked for the GPU must not silently train on the CPU.
+    """
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError, ValueError):
+        raise InputError(f"unknown device {device!r} (cpu or cuda)", "--device") from None
+    if dev.type == "cpu":
+        return dev
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise InputError("CUDA is not available on this machine (use --device cpu)",
+                             "--device")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise InputError(f"no CUDA device {dev.index} on this machine "
+                             f"({torch.cuda.device_count()} found)", "--device")
+        return dev
+    if dev.type == "mps":
+        if not torch.backends.mps.is_available():
+            raise InputError("MPS is not available on this machine (use --device cpu)",
+                             "--device")
+        return dev
+    raise InputError(f"unsupported device {device!r} (cpu or cuda)", "--device")
+
+
+def device_of(module: torch.nn.Module) -> torch.device:
+    """The device of a network's first parameter or buffer (CPU for an empty one)."""
+    for t in (*module.parameters(), *module.buffers()):
+        return t.device
+    return torch.device("cpu")
+
+
+def randn(shape: tuple[int, ...] | torch.Size, generator: torch.Generator,
+          device: torch.device) -> torch.Tensor:
+    """Standard normal float32 noise drawn from a (CPU) ``generator`` and put on ``device``:
+    the same numbers on every device for a seed."""
+    return torch.randn(shape, generator=generator).to(device)
 
 
 # ----------------------------------------------------------------------------- configs
 
 
-def section_config(cls, profile: dict | None, section: str):
+def section_config(cls: type[Config], profile: dict | None, section: str) -> Config:
     """Build the train-config dataclass ``cls`` from ``profile[section]`` (defaults elsewhere).
 
     Unknown keys are an :class:`InputError`: a typo must not silently train the default.
@@ -43,8 +107,10 @@ def section_config(cls, profile: dict | None, section: str):
     return cls(**values)
 
 
-def train_meta(name: str, data_dir: Path, seed: int, cfg, started: float, **extra) -> dict:
-    """Checkpoint ``meta``: method name, train config, data hash, seed and wall time (s)."""
+def train_meta(name: str, data_dir: Path, seed: int, cfg: Any, **extra: Any) -> dict:
+    """Checkpoint ``meta``: method name, train config, data hash and seed. No wall time: the
+    same inputs give the same bytes (``grip-bench train`` and ``run`` agree; the run records
+    each unit's time in its ``unit.json``)."""
     from grip_bench.data.grab_io import dataset_hash
 
     return {
@@ -53,13 +119,13 @@ def train_meta(name: str, data_dir: Path, seed: int, cfg, started: float, **extr
         "seed": int(seed),
         "data_hash": dataset_hash(data_dir),
         "train_config": dataclasses.asdict(cfg),
-        "train_seconds": float(time.perf_counter() - started),
         **extra,
     }
 
 
-def save_models(out: Path, models: dict, meta: dict) -> Path:
-    """``save_checkpoint`` of ``{name: network}`` (each network carries its ``cfg``)."""
+def save_models(out: Path, models: dict[str, torch.nn.Module], meta: dict) -> Path:
+    """``save_checkpoint`` of ``{name: network}`` (each network carries its ``cfg``); the
+    weights are stored on the CPU whatever device they were trained on."""
     return save_checkpoint(
         out,
         model_state={k: m.state_dict() for k, m in models.items()},
@@ -68,7 +134,7 @@ def save_models(out: Path, models: dict, meta: dict) -> Path:
     )
 
 
-def load_own(checkpoint: Path, expected: dict, name: str):
+def load_own(checkpoint: Path, expected: dict[str, type], name: str) -> Checkpoint:
     """``load_checkpoint`` that also refuses a checkpoint written by another method."""
     ck = load_checkpoint(checkpoint, expected)
     if ck.meta.get("method") != name:
@@ -81,44 +147,50 @@ class TrainedMethod:
 
     A subclass sets ``section`` (its profile section), ``config_cls`` (the train-config
     dataclass built from it) and ``networks`` (``{checkpoint key: network config class}``)
-    and implements :meth:`fit`, which returns ``({key: network}, extra meta)``; the
-    checkpoint is :func:`save_models` of those networks with :func:`train_meta`. ``fit``
-    runs on one torch thread (:func:`single_thread`).
-    :meth:`load_checkpoint` reads one back (refusing another method's) and returns the
-    networks and the checkpoint.
+    and implements :meth:`fit`, which builds and trains its networks on ``device`` and
+    returns ``({key: network}, extra meta)``; the checkpoint is :func:`save_models` of
+    those networks with :func:`train_meta`. ``fit`` runs on one torch thread
+    (:func:`single_thread`). :meth:`load_checkpoint` reads one back (refusing another
+    method's), moves its networks to the requested device and returns them with the
+    checkpoint; ``self.device`` is where :meth:`predict` then runs them.
     """
 
     section: str = ""
-    config_cls: type = None
-    networks: dict = {}
+    config_cls: type = type(None)
+    networks: dict[str, type] = {}
 
-    def __init__(self, name: str):
+    def __init__(self, name: str) -> None:
         self.name = name
+        self.device = torch.device("cpu")
 
-    def fit(self, data_dir: Path, cfg, seed: int, progress: bool) -> tuple[dict, dict]:
+    def fit(self, data_dir: Path, cfg: Any, seed: int, progress: bool,
+            device: torch.device) -> tuple[dict[str, torch.nn.Module], dict]:
         raise NotImplementedError
 
-    def train(
-        self,
-        data_dir: Path,
-        out: Path,
-        *,
-        profile: dict,
-        seed: int = 0,
-        device: str = "cpu",
-        progress: bool = True,
-    ) -> Path:
-        started = time.perf_counter()
-        cfg = section_config(self.config_cls, profile, self.section)
+    def train(self, data_dir: Path, out: Path, ctx: TrainContext) -> Path:
+        device = resolve_device(ctx.device)
+        cfg = section_config(self.config_cls, ctx.profile, self.section)
         with single_thread():
-            models, extra = self.fit(Path(data_dir), cfg, seed, progress)
-        meta = train_meta(self.name, Path(data_dir), seed, cfg, started, **extra)
+            models, extra = self.fit(Path(data_dir), cfg, ctx.seed, ctx.progress, device)
+        meta = train_meta(self.name, Path(data_dir), ctx.seed, cfg, **extra)
         return save_models(Path(out), models, meta)
 
-    def load_checkpoint(self, checkpoint: Path | None):
-        """``({key: network}, checkpoint)`` of a checkpoint written by this method."""
+    def load_checkpoint(
+        self, checkpoint: Path | None, device: Device = "cpu"
+    ) -> tuple[dict[str, torch.nn.Module], Checkpoint]:
+        """``({key: network on device}, checkpoint)`` of a checkpoint written by this
+        method (read onto the CPU, then moved); sets ``self.device``."""
+        dev = resolve_device(device)
+        if checkpoint is None:
+            raise InputError("this method needs a checkpoint (grip-bench train)", self.name)
         ck = load_own(checkpoint, self.networks, self.name)
-        return ck.models(), ck
+        self.device = dev
+        return {k: m.to(dev) for k, m in ck.models().items()}, ck
+
+    def _loaded(self, *nets: torch.nn.Module | None) -> None:
+        """An :class:`InputError` unless every network is loaded."""
+        if any(n is None for n in nets):
+            raise InputError("load a checkpoint before predicting", self.name)
 
 
 def log(progress: bool, name: str, msg: str) -> None:
@@ -129,7 +201,7 @@ def log(progress: bool, name: str, msg: str) -> None:
 # ----------------------------------------------------------------------------- data
 
 
-def load_split(data_dir, split: str, limit: int = 0, seed: int = 0) -> list:
+def load_split(data_dir: Path | str, split: str, limit: int = 0, seed: int = 0) -> list[Sequence]:
     """Sequences of ``split`` (``limit`` > 0: a seeded random subset of that many files)."""
     from grip_bench.data.grab_io import read_grab
     from grip_bench.data.splits import sequences_in_split
@@ -141,7 +213,7 @@ def load_split(data_dir, split: str, limit: int = 0, seed: int = 0) -> list:
     return [read_grab(p) for p in files]
 
 
-def train_sequences(data_dir, limit: int = 0, seed: int = 0) -> list:
+def train_sequences(data_dir: Path | str, limit: int = 0, seed: int = 0) -> list[Sequence]:
     """The train split, or an :class:`InputError` when it is empty."""
     seqs = load_split(data_dir, "train", limit, seed)
     if not seqs:
@@ -153,11 +225,27 @@ def train_sequences(data_dir, limit: int = 0, seed: int = 0) -> list:
 
 
 @functools.lru_cache(maxsize=16)
-def hand_model(side: str, scale: float = 1.0):
-    """A cached :class:`ProceduralHand` (building one costs seconds the first time)."""
+def _cpu_hand(side: str, scale: float) -> ProceduralHand:
     from grip_bench.bodies.hand import ProceduralHand
 
     return ProceduralHand(side, float(scale))
+
+
+@functools.lru_cache(maxsize=16)
+def _device_hand(side: str, scale: float, device: torch.device) -> ProceduralHand:
+    import copy
+
+    return copy.deepcopy(_cpu_hand(side, scale)).to(device)
+
+
+def hand_model(side: str, scale: float = 1.0, device: Device = "cpu") -> ProceduralHand:
+    """A cached :class:`ProceduralHand` on ``device`` (building one costs seconds the first
+    time). Each device has its own copy: moving a shared cached hand would move it for
+    every other user too."""
+    dev = torch.device(device)
+    if dev.type == "cpu":
+        return _cpu_hand(side, float(scale))
+    return _device_hand(side, float(scale), dev)
 
 
 class SubsetHand(torch.nn.Module):
@@ -167,18 +255,25 @@ class SubsetHand(torch.nn.Module):
     ``forward(global_orient, hand_pose, transl)`` as the hand's (``None`` = identity /
     zero) -> ``(vertices (B, K, 3), None)``. Losses and features read a few hundred of
     the hand's ~2500 vertices; skinning only those divides the cost of a training step's
-    hand pass (and its backward) by about the same factor.
+    hand pass (and its backward) by about the same factor. It lives on the hand's device
+    (take the hand from :func:`hand_model` with a device rather than moving this module,
+    which would move the cached hand in place).
     """
 
-    def __init__(self, hand, ids):
+    def __init__(self, hand: ProceduralHand, ids: np.ndarray | list[int]) -> None:
         super().__init__()
         self.hand = hand
-        ids = torch.as_tensor(np.array(ids, np.int64))
+        ids = torch.as_tensor(np.array(ids, np.int64), device=hand.weights.device)
         w, v = hand.weights[ids], hand.template_vertices[ids]
         # Rows of [w_vj v_c | w_vj] (K, 64): the pose-free LBS factors of the subset.
         self.register_buffer("skin", torch.cat([(w[:, :, None] * v[:, None]).flatten(1), w], 1))
 
-    def forward(self, global_orient=None, hand_pose=None, transl=None):
+    def forward(
+        self,
+        global_orient: torch.Tensor | None = None,
+        hand_pose: torch.Tensor | None = None,
+        transl: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, None]:
         from grip_bench.geometry.rotations import axis_angle_to_matrix
 
         pose = torch.as_tensor(hand_pose).reshape(-1, 15, 3)
@@ -189,44 +284,48 @@ class SubsetHand(torch.nn.Module):
         x = torch.cat([rot.transpose(2, 3).reshape(b, 48, 3), shift], 1)  # (B, 64, 3)
         verts = torch.einsum("kj,bjc->bkc", self.skin.to(pose), x)
         if global_orient is not None:
-            verts = verts @ axis_angle_to_matrix(torch.as_tensor(global_orient).to(pose)).transpose(
-                1, 2
-            )
+            go = torch.as_tensor(global_orient).to(pose)
+            verts = verts @ axis_angle_to_matrix(go).transpose(1, 2)
         if transl is not None:
             verts = verts + torch.as_tensor(transl).to(pose)[:, None]
         return verts, None
 
 
-def seq_hand(seq, side: str):
-    """The procedural hand of ``seq``'s subject; MANO sequences are not supported here."""
+def seq_hand(seq: Sequence, side: str, device: Device = "cpu") -> ProceduralHand:
+    """The procedural hand of ``seq``'s subject (on ``device``); MANO sequences are not
+    supported here."""
     if seq.body_model != "procedural":
         raise InputError(
             "the baselines pose procedural hands only (SynthGRAB); this sequence uses "
             f"{seq.body_model!r}",
             f"{seq.source or seq.name}: body_model",
         )
-    return hand_model(side, float(seq.hand_scale or 1.0))
+    return hand_model(side, float(seq.hand_scale or 1.0), device)
 
 
-def pose_hand(hand, global_orient, hand_pose, transl) -> tuple[np.ndarray, np.ndarray]:
+def pose_hand(hand: ProceduralHand, global_orient: np.ndarray, hand_pose: np.ndarray,
+              transl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World vertices (T, V, 3) and joints (T, 21, 3), float64, from numpy axis-angles."""
     dt = hand.template_vertices.dtype
     t = lambda a: torch.as_tensor(np.asarray(a, np.float64), dtype=dt)  # noqa: E731
     with torch.no_grad():
         v, j = hand(t(global_orient), t(hand_pose).reshape(-1, 15, 3), t(transl))
-    return v.double().numpy(), j.double().numpy()
+    return v.double().cpu().numpy(), j.double().cpu().numpy()
 
 
-def seq_vertices(seq, side: str, params: dict | None = None) -> np.ndarray:
+def seq_vertices(seq: Sequence, side: str, params: dict | None = None) -> np.ndarray:
     """Posed world vertices (T, V, 3) of one hand of ``seq`` (or of ``params``)."""
     p = params or seq.hand_params(side)
     return pose_hand(seq_hand(seq, side), p["global_orient"], p["hand_pose"], p["transl"])[0]
 
 
-def object_pose(seq) -> tuple[np.ndarray, np.ndarray]:
-    """Object pose as column rotations ``R (T, 3, 3)`` and translations ``t (T, 3)``:
-    ``world = R @ local + t`` (the transpose of GRAB's row-vector matrices)."""
-    return np.transpose(seq.object_rotations(), (0, 2, 1)), np.asarray(seq.object["transl"], float)
+def to_object(seq: Sequence, world: np.ndarray, frames: np.ndarray | None = None) -> np.ndarray:
+    """World points ``(T, N, 3)`` (or ``(F, N, 3)`` of ``frames``) in the object's frame
+    (:func:`grip_bench.core.frames.world_to_object`)."""
+    R, t = seq.object_rotations(), np.asarray(seq.object["transl"], float)
+    if frames is not None:
+        R, t = R[frames], t[frames]
+    return world_to_object(world, R, t)
 
 
 def wrist_pose(params: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -235,28 +334,25 @@ def wrist_pose(params: dict) -> tuple[np.ndarray, np.ndarray]:
     return rot, np.asarray(params["transl"], float)
 
 
-def signed_distance(library, seq, world: np.ndarray, frames=None) -> np.ndarray:
+def signed_distance(library: ObjectLibrary, seq: Sequence, world: np.ndarray,
+                    frames: np.ndarray | None = None) -> np.ndarray:
     """Signed distance (T, N) (m, negative inside) of world points (T, N, 3) to the object
     (``frames``: the points are of those frames only, ``(F, N, 3)`` -> ``(F, N)``).
 
     Beyond the library grid the bounding-box bound answers: exact enough for the 4.5 mm
     contact test and for features that are clipped at a few centimetres.
     """
-    if frames is None:
-        local = library.world_to_object(seq, world)
-    else:
-        R, t = (x[frames] for x in object_pose(seq))
-        local = np.einsum("fji,fvj->fvi", R, np.asarray(world) - t[:, None])
+    local = to_object(seq, np.asarray(world), frames)
     return library.field(seq.obj_name).signed_distance(local, far="bound")
 
 
 def contact_frames(
-    library,
-    seq,
+    library: ObjectLibrary,
+    seq: Sequence,
     side: str,
     params: dict | None = None,
     threshold: float = C.CONTACT_THRESHOLD,
-    frames=None,
+    frames: np.ndarray | None = None,
 ) -> np.ndarray:
     """Frames (T,) where the hand (``params`` or the sequence's) is within ``threshold``
     of the object or inside it: the grasp frames of DESIGN 5 for ground-truth hands.
@@ -268,20 +364,13 @@ def contact_frames(
     return (d <= threshold).any(axis=1)
 
 
-def mirror_pose(aa: np.ndarray) -> np.ndarray:
-    """Mirror axis-angles ``(..., 3k)`` between the hands: ``(ax, ay, az) -> (ax, -ay, -az)``."""
-    a = np.asarray(aa, float)
-    out = a.reshape(*a.shape[:-1], -1, 3) * np.array([1.0, -1.0, -1.0])
-    return out.reshape(a.shape)
-
-
 def matrix_to_rotvec(m: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) -> axis-angles (..., 3)."""
     m = np.asarray(m, float)
     return Rotation.from_matrix(m.reshape(-1, 3, 3)).as_rotvec().reshape(*m.shape[:-2], 3)
 
 
-def vertex_subset(hand, n: int) -> np.ndarray:
+def vertex_subset(hand: ProceduralHand, n: int) -> np.ndarray:
     """``n`` hand vertex ids at a fixed stride (``n = 0``: all vertices), int64."""
     v = hand.num_vertices
     return np.arange(v) if n <= 0 or n >= v else np.linspace(0, v - 1, n).astype(np.int64)
@@ -291,7 +380,7 @@ def seeded(seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(int(seed))
 
 
-def batches(n: int, size: int, rng: np.random.Generator, shuffle: bool = True):
+def batches(n: int, size: int, rng: np.random.Generator, shuffle: bool = True) -> list[np.ndarray]:
     """Index arrays covering ``range(n)`` in chunks of ``size`` (shuffled per call)."""
     order = rng.permutation(n) if shuffle else np.arange(n)
     # A final batch of one would break BatchNorm's training statistics: fold it in.

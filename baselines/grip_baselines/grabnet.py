@@ -17,13 +17,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import torch
 from torch import nn
 
-from grip_bench.constants import (
+from grip_bench.core.constants import (
     BPS_N_POINTS,
     CONTACT_THRESHOLD,
     GRABNET_LATENT,
@@ -34,7 +34,10 @@ from grip_bench.constants import (
     ROT6D_DIM,
 )
 from grip_bench.geometry.rotations import rotation_6d_to_axis_angle
-from grip_bench.grip.blocks import ResMLP, check_config, check_shape
+from grip_bench.nn.blocks import ResMLP, check_config, check_shape
+
+if TYPE_CHECKING:
+    from grip_bench.geometry.distance import DistanceField
 
 __all__ = [
     "CoarseNet",
@@ -99,7 +102,7 @@ def _with_identity(flat: torch.Tensor, n_joints: int) -> torch.Tensor:
     return flat + offset
 
 
-def _transl_scale(cfg, unit: float) -> torch.Tensor:
+def _transl_scale(cfg: CoarseNetConfig | RefineNetConfig, unit: float) -> torch.Tensor:
     """Per-output multiplier ``(grasp_dim,)``: ``unit`` on the translation, 1 elsewhere."""
     scale = torch.ones(cfg.grasp_dim)
     scale[cfg.rot_dim : cfg.rot_dim + 3] = unit
@@ -125,7 +128,7 @@ class CoarseNetConfig:
     # centre, so an O(1) output per decimetre matches the 6D outputs' scale.
     transl_unit: float = 0.1
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_config(self)
         if not self.transl_unit > 0:
             raise ValueError(f"CoarseNetConfig.transl_unit must be > 0, got {self.transl_unit!r}")
@@ -150,7 +153,7 @@ class CoarseNet(nn.Module):
     BatchNorm is used throughout, so call ``.eval()`` before sampling single objects.
     """
 
-    def __init__(self, cfg: CoarseNetConfig):
+    def __init__(self, cfg: CoarseNetConfig) -> None:
         super().__init__()
         self.cfg = cfg
         mlp = dict(width=cfg.width, hidden=cfg.hidden, dropout=cfg.dropout)
@@ -180,7 +183,11 @@ class CoarseNet(nn.Module):
     ) -> CoarseOutput:
         """Training pass: encode, reparameterise, decode."""
         mu, logvar = self.encode(bps, grasp)
-        eps = torch.randn(mu.shape, generator=generator, dtype=mu.dtype, device=mu.device)
+        # Drawn where the generator lives (a CPU generator for seeded runs), then moved:
+        # the same noise for a seed on every device.
+        where = mu.device if generator is None else generator.device
+        eps = torch.randn(mu.shape, generator=generator, dtype=mu.dtype, device=where)
+        eps = eps.to(mu.device)
         z = mu + eps * torch.exp(0.5 * logvar)
         return CoarseOutput(self.decode(z, bps), mu, logvar)
 
@@ -227,7 +234,7 @@ class RefineNetConfig:
     share_weights: bool = False
     zero_init_head: bool = True
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_config(self)
         for name in ("dist_clip", "transl_unit"):
             if not getattr(self, name) > 0:
@@ -260,7 +267,7 @@ class RefineNet(nn.Module):
     (default ones).
     """
 
-    def __init__(self, cfg: RefineNetConfig):
+    def __init__(self, cfg: RefineNetConfig) -> None:
         super().__init__()
         self.cfg = cfg
         n_nets = 1 if cfg.share_weights else cfg.n_iters
@@ -315,7 +322,7 @@ HandFn = Callable[[GraspParams], torch.Tensor]  # grasp -> vertices (B, V, 3), d
 SdfFn = Callable[[torch.Tensor], torch.Tensor]  # points (..., 3) -> signed distance (...)
 
 
-def make_hand_fn(hand, vertex_ids=None) -> HandFn:
+def make_hand_fn(hand: torch.nn.Module, vertex_ids: np.ndarray | None = None) -> HandFn:
     """Differentiable ``grasp -> vertices (B, V, 3)`` (or ``(B, K, 3)`` at ``vertex_ids``)
     from a hand model with ``forward(global_orient, hand_pose, transl)`` (ProceduralHand)."""
 
@@ -324,12 +331,12 @@ def make_hand_fn(hand, vertex_ids=None) -> HandFn:
     def fn(grasp: GraspParams) -> torch.Tensor:
         go, pose, transl = grasp.axis_angle()
         verts = hand(go, pose, transl)[0]
-        return verts if ids is None else verts[:, ids]
+        return verts if ids is None else verts[:, ids.to(verts.device)]
 
     return fn
 
 
-def make_distance_fn(hand, sdf: SdfFn, vertex_ids) -> DistanceFn:
+def make_distance_fn(hand: torch.nn.Module, sdf: SdfFn, vertex_ids: np.ndarray) -> DistanceFn:
     """RefineNet's distance function: signed distances ``(B, K)`` (m) of the grasp's hand
     vertices ``vertex_ids (K,)`` to the object, ``sdf`` e.g. ``DistanceField.signed_distance``
     (object frame = the grasp frame; numpy or torch results are both accepted)."""
@@ -348,18 +355,18 @@ class _FieldSDF(torch.autograd.Function):
     """Signed distance with the field's spatial gradient as its derivative."""
 
     @staticmethod
-    def forward(ctx, points, field):
+    def forward(ctx: Any, points: torch.Tensor, field: DistanceField) -> torch.Tensor:
         d = field.signed_distance(points.detach())
         ctx.save_for_backward(field.gradient(points.detach()))
         return d
 
     @staticmethod
-    def backward(ctx, grad):
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor, None]:
         (g,) = ctx.saved_tensors
         return grad[..., None] * g, None
 
 
-def sdf_with_gradient(field) -> SdfFn:
+def sdf_with_gradient(field: DistanceField) -> SdfFn:
     """Wrap a ``DistanceField`` as a differentiable ``points (..., 3) -> (...)`` for the
     contact and penetration losses (the field itself is not autograd-aware)."""
     return lambda points: _FieldSDF.apply(points, field)
@@ -419,7 +426,7 @@ def losses(
     mu: torch.Tensor | None = None,
     logvar: torch.Tensor | None = None,
     sdf: SdfFn | None = None,
-    faces=None,
+    faces: np.ndarray | None = None,
     gt_contact: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """CoarseNet / RefineNet training loss; returns ``(total, {term: value})``.

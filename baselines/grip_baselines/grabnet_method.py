@@ -27,37 +27,48 @@ object); other frames, and the left hand of ``grabnet``, keep the input unchange
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import igl
 import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.constants import (
+from grip_bench.core.constants import (
     CONTACT_THRESHOLD,
     GRABNET_NOISE_VAR,
     GRABNET_SMPLX_BPS_CENTRE,
     PROXIMITY_N_VERTS,
 )
+from grip_bench.core.errors import InputError
 from grip_bench.geometry.rotations import (
     axis_angle_to_rotation_6d,
     rotation_6d_to_axis_angle,
     rotation_6d_to_matrix,
 )
+from grip_bench.methods.api import MethodSpec, PredictContext, register_method
 
 from . import common as U
 from .bps import basis_points, object_centre
 from .grabnet import (
+    CoarseNet,
     CoarseNetConfig,
     GrabNetLossConfig,
     GraspParams,
+    RefineNet,
     RefineNetConfig,
     losses,
     make_hand_fn,
 )
+
+if TYPE_CHECKING:
+    from grip_bench.bodies.hand import ProceduralHand
+    from grip_bench.data.library import ObjectLibrary
+    from grip_bench.data.sequence import Sequence
+    from grip_bench.geometry.distance import DistanceField
 
 IDENTITY = np.eye(3)
 
@@ -121,23 +132,28 @@ class Samples:
 # ----------------------------------------------------------------------------- samples
 
 
-def _frame_samples(seq, library, side: str, frames: np.ndarray, tied: bool, rng):
+def _frame_samples(
+    seq: Sequence,
+    library: ObjectLibrary,
+    side: str,
+    frames: np.ndarray,
+    tied: bool,
+    rng: np.random.Generator | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per grasp frame of one hand: (A, b, orient, transl, pose) arrays."""
-    R_o, t_o = U.object_pose(seq)
+    R_o = U.object_pose(seq)[0][frames]
     p = seq.hand_params(side)
-    R_w, p_w = U.wrist_pose(p)
-    R_o, t_o, R_w, p_w = R_o[frames], t_o[frames], R_w[frames], p_w[frames]
+    R_w, p_w = (x[frames] for x in U.wrist_pose(p))
     pose = np.asarray(p["hand_pose"], float)[frames]
     n = len(frames)
+    p_loc = U.to_object(seq, p_w[:, None], frames)[:, 0]  # wrist position, object frame
     if tied:
         S = U.MIRROR if side == "left" else IDENTITY
         A = np.einsum("nji,njk,kl->nil", R_o, R_w, S)  # R_o^T R_w S
-        b = np.einsum("nji,nj->ni", R_o, p_w - t_o)
         pose = U.mirror_pose(pose) if side == "left" else pose
-        return A, b, np.broadcast_to(IDENTITY, (n, 3, 3)), np.zeros((n, 3)), pose
+        return A, p_loc, np.broadcast_to(IDENTITY, (n, 3, 3)), np.zeros((n, 3)), pose
     c = object_centre(library.mesh(seq.obj_name))
     R_loc = np.einsum("nji,njk->nik", R_o, R_w)  # wrist in the object frame
-    p_loc = np.einsum("nji,nj->ni", R_o, p_w - t_o)
     # Model frame y = Q (x - c): a random rotation (augmentation), or else the object
     # centred and aligned with the world (Q = R_o), the frame prediction generates in.
     Q = Rotation.random(n, random_state=rng).as_matrix() if rng is not None else R_o
@@ -151,7 +167,9 @@ def b_of(c: np.ndarray, n: int) -> np.ndarray:
     return np.broadcast_to(np.asarray(c, float), (n, 3)).copy()
 
 
-def collect_samples(seqs, library, cfg: GrabNetTrainConfig, tied: bool, seed: int) -> Samples:
+def collect_samples(
+    seqs: list[Sequence], library: ObjectLibrary, cfg: GrabNetTrainConfig, tied: bool, seed: int
+) -> Samples:
     """Ground-truth grasp frames of the train split as model-frame samples."""
     rng = np.random.default_rng(seed)
     sides = U.SIDES if tied else ("right",)
@@ -171,8 +189,6 @@ def collect_samples(seqs, library, cfg: GrabNetTrainConfig, tied: bool, seed: in
                 arrays = _frame_samples(seq, library, side, frames, tied, aug)
                 parts.append((np.full(len(frames), names.index(seq.obj_name)), *arrays))
     if not parts:
-        from grip_bench.errors import InputError
-
         raise InputError("no grasp frames in the train split", "grabnet training data")
     cols = [np.concatenate([np.asarray(p[k]) for p in parts]) for k in range(6)]
     keep = np.arange(len(cols[0]))
@@ -182,7 +198,15 @@ def collect_samples(seqs, library, cfg: GrabNetTrainConfig, tied: bool, seed: in
     return Samples(obj, names, A, b, orient, transl, pose)
 
 
-def bps_codes(library, names, obj, A, b, basis, centre) -> np.ndarray:
+def bps_codes(
+    library: ObjectLibrary,
+    names: list[str],
+    obj: np.ndarray,
+    A: np.ndarray,
+    b: np.ndarray,
+    basis: np.ndarray,
+    centre: tuple[float, float, float] | np.ndarray,
+) -> np.ndarray:
     """BPS distances (N, n) (m): basis ``centre + basis`` in each sample's model frame,
     mapped to the object frame, distance to the object's surface (exact, libigl)."""
     out = np.empty((len(obj), len(basis)))
@@ -203,15 +227,17 @@ def bps_codes(library, names, obj, A, b, basis, centre) -> np.ndarray:
 # ----------------------------------------------------------------------------- tensors
 
 
-def to_grasp(orient, transl, pose) -> GraspParams:
+def to_grasp(
+    orient: np.ndarray, transl: np.ndarray, pose: np.ndarray, device: U.Device = "cpu"
+) -> GraspParams:
     """numpy (N,3,3), (N,3), (N,45) -> float32 :class:`GraspParams` with 6D rotations."""
     o6 = np.concatenate([orient[..., :, 0], orient[..., :, 1]], -1)
     p6 = axis_angle_to_rotation_6d(np.asarray(pose, np.float64).reshape(-1, 15, 3))
-    f = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+    f = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
     return GraspParams(f(o6), f(transl), f(p6))
 
 
-def index_grasp(g: GraspParams, idx) -> GraspParams:
+def index_grasp(g: GraspParams, idx: np.ndarray | torch.Tensor) -> GraspParams:
     return GraspParams(*(x[idx] for x in g))
 
 
@@ -221,7 +247,9 @@ def pin_wrist(g: GraspParams) -> GraspParams:
     return GraspParams(eye, torch.zeros_like(g.transl), g.hand_pose)
 
 
-def field_distance_and_gradient(field, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def field_distance_and_gradient(
+    field: DistanceField, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance ``(N,)`` (m) and unit outward gradient ``(N, 3)`` of object-frame
     points ``q (N, 3)``.
 
@@ -247,13 +275,13 @@ class _FeedSDF(torch.autograd.Function):
     """Signed distance of model-frame points with the field's gradient as derivative."""
 
     @staticmethod
-    def forward(ctx, points, feed):
+    def forward(ctx: Any, points: torch.Tensor, feed: DistanceFeed) -> torch.Tensor:
         d, g = feed.distance(points.detach(), gradient=True)
         ctx.save_for_backward(g)
         return d
 
     @staticmethod
-    def backward(ctx, grad):
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor, None]:
         (g,) = ctx.saved_tensors
         return grad[..., None] * g, None
 
@@ -267,19 +295,30 @@ class DistanceFeed:
     model-frame points ``(B, V, 3)``, for the contact and penetration losses.
     """
 
-    def __init__(self, library, names, obj, A, b, hand, vertex_ids):
+    def __init__(
+        self,
+        library: ObjectLibrary,
+        names: list[str],
+        obj: np.ndarray,
+        A: np.ndarray,
+        b: np.ndarray,
+        hand: ProceduralHand,
+        vertex_ids: np.ndarray | list[int],
+    ) -> None:
         self.library, self.names, self.obj = library, names, np.asarray(obj)
         self.A, self.b = np.asarray(A), np.asarray(b)
         self.hand_fn = make_hand_fn(U.SubsetHand(hand, vertex_ids))
 
-    def subset(self, idx) -> DistanceFeed:
+    def subset(self, idx: np.ndarray | list[int]) -> DistanceFeed:
         """The feed of samples ``idx`` (same library, objects and hand)."""
         out = object.__new__(DistanceFeed)
         out.library, out.names, out.hand_fn = self.library, self.names, self.hand_fn
         out.obj, out.A, out.b = self.obj[idx], self.A[idx], self.b[idx]
         return out
 
-    def distance(self, points: torch.Tensor, gradient: bool = False):
+    def distance(
+        self, points: torch.Tensor, gradient: bool = False
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Signed distances ``(B, V)`` of model-frame points ``(B, V, 3)`` (torch, the
         points' dtype); with ``gradient`` also ``d distance / d point`` ``(B, V, 3)``."""
         y = points.detach().double().cpu().numpy()
@@ -309,7 +348,9 @@ class DistanceFeed:
         return self.distance(y).to(grasp.transl.dtype)
 
 
-def refine(net, grasp: GraspParams, feed, tied: bool) -> list[GraspParams]:
+def refine(
+    net: RefineNet, grasp: GraspParams, feed: Callable[[GraspParams], torch.Tensor], tied: bool
+) -> list[GraspParams]:
     """RefineNet's iterations; the tied variant keeps its wrist pinned after each step."""
     steps = []
     for i in range(net.cfg.n_iters):
@@ -322,16 +363,20 @@ def refine(net, grasp: GraspParams, feed, tied: bool) -> list[GraspParams]:
 # ----------------------------------------------------------------------------- training
 
 
-def _noisy(g: GraspParams, cfg: GrabNetTrainConfig, tied: bool, gen) -> GraspParams:
-    """GT grasps with Gaussian noise on finger axis-angles, root orientation and position."""
+def _noisy(
+    g: GraspParams, cfg: GrabNetTrainConfig, tied: bool, gen: torch.Generator
+) -> GraspParams:
+    """GT grasps with Gaussian noise on finger axis-angles, root orientation and position
+    (drawn from the CPU generator ``gen``, then put on the grasps' device)."""
+    dev = g.transl.device
     pose = rotation_6d_to_axis_angle(g.hand_pose)
-    pose = pose + cfg.noise_finger * torch.randn(pose.shape, generator=gen)
+    pose = pose + cfg.noise_finger * U.randn(pose.shape, gen, dev)
     if tied:
         return GraspParams(g.global_orient, g.transl, axis_angle_to_rotation_6d(pose))
     R = rotation_6d_to_matrix(g.global_orient)
-    dR = axis_angle_to_rotation_6d(cfg.noise_orient * torch.randn(R.shape[0], 3, generator=gen))
+    dR = axis_angle_to_rotation_6d(cfg.noise_orient * U.randn((R.shape[0], 3), gen, dev))
     R = rotation_6d_to_matrix(dR) @ R
-    transl = g.transl + cfg.noise_transl * torch.randn(g.transl.shape, generator=gen)
+    transl = g.transl + cfg.noise_transl * U.randn(g.transl.shape, gen, dev)
     return GraspParams(
         torch.cat([R[..., :, 0], R[..., :, 1]], -1), transl, axis_angle_to_rotation_6d(pose)
     )
@@ -340,12 +385,23 @@ def _noisy(g: GraspParams, cfg: GrabNetTrainConfig, tied: bool, gen) -> GraspPar
 def _contact_weights(feed: DistanceFeed, target: GraspParams) -> torch.Tensor:
     """Per proximity vertex contact likelihood in the training grasps, as RefineNet's
     distance weights (GrabNet learns these from GRAB): 0.25 + 0.75 * frequency / max."""
-    d = feed(target).numpy()
-    freq = (d <= 0.0045).mean(0)
-    return torch.as_tensor(0.25 + 0.75 * freq / max(freq.max(), 1e-9), dtype=torch.float32)
+    d = feed(target)
+    freq = (d.cpu().numpy() <= 0.0045).mean(0)
+    weights = 0.25 + 0.75 * freq / max(freq.max(), 1e-9)
+    return torch.as_tensor(weights, dtype=torch.float32, device=d.device)
 
 
-def _epochs(name, net, params, n, cfg, epochs, step, progress, rng):
+def _epochs(
+    name: str,
+    net: torch.nn.Module,
+    params: Any,
+    n: int,
+    cfg: GrabNetTrainConfig,
+    epochs: int,
+    step: Callable[[np.ndarray], torch.Tensor],
+    progress: bool,
+    rng: np.random.Generator,
+) -> torch.nn.Module:
     opt = torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     for epoch in range(epochs):
         net.train()
@@ -360,7 +416,9 @@ def _epochs(name, net, params, n, cfg, epochs, step, progress, rng):
     return net.eval()
 
 
-def _coarse_inputs(coarse, bps, gt: GraspParams, tied: bool, gen) -> GraspParams:
+def _coarse_inputs(
+    coarse: CoarseNet, bps: torch.Tensor, gt: GraspParams, tied: bool, gen: torch.Generator
+) -> GraspParams:
     """CoarseNet's reconstructions of ``gt`` (z from the posterior), as RefineNet sees
     CoarseNet grasps at inference; no gradient into CoarseNet."""
     with torch.no_grad():
@@ -368,8 +426,17 @@ def _coarse_inputs(coarse, bps, gt: GraspParams, tied: bool, gen) -> GraspParams
     return pin_wrist(g) if tied else g
 
 
-def train_grabnet(name, data_dir, cfg, tied, seed, progress):
-    """CoarseNet then RefineNet; returns (coarse, refine, n_samples).
+def train_grabnet(
+    name: str,
+    data_dir: Path,
+    cfg: GrabNetTrainConfig,
+    tied: bool,
+    seed: int,
+    progress: bool,
+    device: U.Device = "cpu",
+) -> tuple[CoarseNet, RefineNet, int]:
+    """CoarseNet then RefineNet, built and trained on ``device``; returns
+    (coarse, refine, n_samples).
 
     Both are trained with the vertex, pose and translation data terms plus GRAB's contact
     and penetration terms on the object's distance field (``w_contact``,
@@ -388,9 +455,10 @@ def train_grabnet(name, data_dir, cfg, tied, seed, progress):
     bps = torch.as_tensor(
         bps_codes(library, s.names, s.obj, s.A, s.b, basis_points(cfg.bps_points), centre),
         dtype=torch.float32,
+        device=device,
     )
-    target = to_grasp(s.orient, s.transl, s.pose)
-    hand = U.hand_model("right")
+    target = to_grasp(s.orient, s.transl, s.pose, device)
+    hand = U.hand_model("right", device=device)
     hand_fn = make_hand_fn(U.SubsetHand(hand, U.vertex_subset(hand, cfg.loss_vertices)))
     feed_all = DistanceFeed(library, s.names, s.obj, s.A, s.b, hand, hand.proximity_ids)
     with torch.no_grad():
@@ -400,16 +468,19 @@ def train_grabnet(name, data_dir, cfg, tied, seed, progress):
     )
     U.log(progress, name, f"{len(s.obj)} grasp frames of {len(s.names)} objects")
 
-    def loss(pred, idx, feed, contact=True, **kw):
+    def loss(
+        pred: GraspParams, idx: np.ndarray, feed: DistanceFeed, contact: bool = True,
+        **kw: torch.Tensor,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         gt = index_grasp(target, idx)
         sdf = dict(sdf=feed.sdf, gt_contact=gt_contact[idx]) if contact else {}
         return losses(pred, gt, lcfg, hand_fn=hand_fn, **sdf, **kw)
 
     coarse = CoarseNetConfig(
         bps_dim=cfg.bps_points, width=cfg.width, hidden=cfg.hidden, latent=cfg.latent
-    ).build()
+    ).build().to(device)
 
-    def coarse_step(idx):
+    def coarse_step(idx: np.ndarray) -> torch.Tensor:
         out = coarse(bps[idx], index_grasp(target, idx), generator=gen)
         return loss(out.grasp, idx, feed_all.subset(idx), mu=out.mu, logvar=out.logvar)[0]
 
@@ -418,10 +489,10 @@ def train_grabnet(name, data_dir, cfg, tied, seed, progress):
 
     refine_net = RefineNetConfig(
         n_verts=PROXIMITY_N_VERTS, width=cfg.refine_width, hidden=cfg.refine_width
-    ).build()
+    ).build().to(device)
     refine_net.contact_weights.copy_(_contact_weights(feed_all, target))
 
-    def refine_step(idx):
+    def refine_step(idx: np.ndarray) -> torch.Tensor:
         feed = feed_all.subset(idx)
         gt = index_grasp(target, idx)
         start = _noisy(gt, cfg, tied, gen)
@@ -429,7 +500,7 @@ def train_grabnet(name, data_dir, cfg, tied, seed, progress):
         if n_coarse:
             rows = np.sort(rng.permutation(len(idx))[:n_coarse])
             rec = _coarse_inputs(coarse.eval(), bps[idx[rows]], index_grasp(gt, rows), tied, gen)
-            at = torch.as_tensor(rows)
+            at = torch.as_tensor(rows, device=device)
             start = GraspParams(*(a.index_copy(0, at, b) for a, b in zip(start, rec, strict=True)))
         steps = refine(refine_net, start, feed, tied)
         # Data terms on every step; contact and penetration on the final grasp (the one
@@ -452,37 +523,40 @@ class GrabNetMethod(U.TrainedMethod):
     section, config_cls = "grabnet", GrabNetTrainConfig
     networks = {"coarse": CoarseNetConfig, "refine": RefineNetConfig}
 
-    def __init__(self, name: str, tied: bool = False):
+    def __init__(self, name: str, tied: bool = False) -> None:
         super().__init__(name)
         self.tied = tied
-        self.coarse = self.refine_net = None
+        self.coarse: CoarseNet | None = None
+        self.refine_net: RefineNet | None = None
 
-    def fit(self, data_dir: Path, cfg: GrabNetTrainConfig, seed: int, progress: bool):
-        coarse, ref, n = train_grabnet(self.name, data_dir, cfg, self.tied, seed, progress)
+    def fit(
+        self, data_dir: Path, cfg: GrabNetTrainConfig, seed: int, progress: bool,
+        device: torch.device,
+    ) -> tuple[dict[str, torch.nn.Module], dict]:
+        coarse, ref, n = train_grabnet(self.name, data_dir, cfg, self.tied, seed, progress,
+                                       device)
         return {"coarse": coarse, "refine": ref}, {"n_samples": n, "tied": self.tied}
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        nets = self.load_checkpoint(checkpoint)[0]
+        nets = self.load_checkpoint(checkpoint, device)[0]
         self.coarse, self.refine_net = nets["coarse"], nets["refine"]
 
-    def predict(self, seq, ctx: PredictContext):
-        """The input with generated hands at the grasp frames of the input hands."""
-        if self.coarse is None:
-            from grip_bench.errors import InputError
-
-            raise InputError("load a checkpoint before predicting", self.name)
+    def predict(self, seq: Sequence, ctx: PredictContext) -> Sequence:
+        """The input with generated hands at the grasp frames of the input hands
+        (networks on the device :meth:`load` put them on)."""
+        self._loaded(self.coarse, self.refine_net)
         sides = U.SIDES if self.tied else ("right",)
         with U.single_thread():
             new = {side: self._predict_side(seq, ctx, side) for side in sides}
         return seq.with_hands(**{k: v for k, v in new.items() if v is not None})
 
-    def _frames(self, seq, ctx, side):
-        given = (ctx.extra or {}).get("grasp_frames", {}).get(side)
+    def _frames(self, seq: Sequence, ctx: PredictContext, side: str) -> np.ndarray:
+        given = (ctx.grasp_frames or {}).get(side)
         if given is not None:
             return np.flatnonzero(np.asarray(given, bool))
         return np.flatnonzero(U.contact_frames(ctx.library, seq, side))
 
-    def _predict_side(self, seq, ctx, side):
+    def _predict_side(self, seq: Sequence, ctx: PredictContext, side: str) -> dict | None:
         frames = self._frames(seq, ctx, side)
         if len(frames) == 0:
             return None
@@ -492,18 +566,21 @@ class GrabNetMethod(U.TrainedMethod):
         A, b, _, _, _ = _frame_samples(seq, library, side, frames, self.tied, None)
         names, obj = [seq.obj_name], np.zeros(len(frames), int)
         centre = GRABNET_SMPLX_BPS_CENTRE if self.tied else (0.0, 0.0, 0.0)
+        dev = self.device
         bps = torch.as_tensor(
             bps_codes(library, names, obj, A, b, basis_points(cfg.bps_dim), centre),
             dtype=torch.float32,
+            device=dev,
         )
         offset = 0 if side == "right" else 100_003  # distinct latents for the two hands
+        # z per frame from a CPU generator (the same latents on every device), moved once
         z = torch.stack(
             [
                 torch.randn(cfg.latent, generator=U.seeded(ctx.seed + int(t) + offset))
                 for t in frames
             ]
-        )
-        hand = U.seq_hand(seq, "right")  # the model frame is a right hand's
+        ).to(dev)
+        hand = U.seq_hand(seq, "right", dev)  # the model frame is a right hand's
         feed = DistanceFeed(library, names, obj, A, b, hand, hand.proximity_ids)
         with torch.no_grad():
             grasp = self.coarse.decode(z, bps)
@@ -511,10 +588,18 @@ class GrabNetMethod(U.TrainedMethod):
             grasp = refine(self.refine_net, grasp, feed, self.tied)[-1]
         return self._to_world(seq, side, frames, grasp, A, b)
 
-    def _to_world(self, seq, side, frames, grasp, A, b) -> dict:
+    def _to_world(
+        self,
+        seq: Sequence,
+        side: str,
+        frames: np.ndarray,
+        grasp: GraspParams,
+        A: np.ndarray,
+        b: np.ndarray,
+    ) -> dict:
         """Model-frame grasps -> the side's full-length hand params (input elsewhere)."""
         p = {k: np.array(v, float) for k, v in seq.hand_params(side).items()}
-        go, pose, transl = (x.double().numpy() for x in grasp.axis_angle())
+        go, pose, transl = (x.double().cpu().numpy() for x in grasp.axis_angle())
         pose = pose.reshape(len(frames), 45)
         p["hand_pose"][frames] = U.mirror_pose(pose) if side == "left" else pose
         if not self.tied:
@@ -530,10 +615,10 @@ class GrabNetMethod(U.TrainedMethod):
 register_method(
     MethodSpec(
         name="grabnet",
-        description="GrabNet-style static right-hand grasps (CoarseNet cVAE + RefineNet) per grasp frame",
+        description="GrabNet-style static right-hand grasps (CoarseNet cVAE + RefineNet) "
+        "per grasp frame",
         factory=GrabNetMethod,
         needs=("object",),
-        tables=("table4_grasp",),
         options={"tied": False},
         hands=("right",),
     )
@@ -544,7 +629,6 @@ register_method(
         description="GrabNet fingers for both hands at the body's wrists (BPS in the wrist frame)",
         factory=GrabNetMethod,
         needs=("object", "body"),
-        tables=("table4_grasp",),
         options={"tied": True},
     )
 )

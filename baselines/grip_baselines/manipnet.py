@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from grip_bench.constants import (
+from grip_bench.core.constants import (
     MANIPNET_DIST_CLIP,
     MANIPNET_FUTURE,
     MANIPNET_PAST,
@@ -34,8 +34,9 @@ from grip_bench.constants import (
     PROXIMITY_N_VERTS,
     ROT6D_DIM,
 )
+from grip_bench.core.frames import world_to_object
 from grip_bench.geometry.rotations import matrix_to_rotation_6d
-from grip_bench.grip.blocks import ResMLP, check_config, check_shape
+from grip_bench.nn.blocks import ResMLP, check_config, check_shape
 
 __all__ = [
     "ManipNet",
@@ -65,7 +66,7 @@ class ManipNetConfig:
     dropout: float = 0.3  # as GRIP's residual MLPs; ManipNet's inputs are as redundant
     zero_init_head: bool = True
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_config(self, may_be_zero=("n_past", "n_future"))
 
     @property
@@ -85,7 +86,7 @@ class ManipNetConfig:
 class ManipNet(nn.Module):
     """Residual MLP: features of frame t -> finger pose at t (residual on the previous)."""
 
-    def __init__(self, cfg: ManipNetConfig):
+    def __init__(self, cfg: ManipNetConfig) -> None:
         super().__init__()
         self.cfg = cfg
         self.net = ResMLP(
@@ -142,10 +143,12 @@ class ManipNetInputs:
     distances: np.ndarray
     prev_pose: np.ndarray
 
-    def torch(self, dtype=torch.float32) -> tuple[torch.Tensor, ...]:
-        """The four arrays as tensors, in :meth:`ManipNet.forward` order."""
+    def torch(
+        self, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu"
+    ) -> tuple[torch.Tensor, ...]:
+        """The four arrays as tensors on ``device``, in :meth:`ManipNet.forward` order."""
         return tuple(
-            torch.as_tensor(x, dtype=dtype)
+            torch.as_tensor(x, dtype=dtype, device=device)
             for x in (self.traj, self.voxels, self.distances, self.prev_pose)
         )
 
@@ -153,7 +156,7 @@ class ManipNetInputs:
 def voxel_centres(
     res: int = MANIPNET_VOXEL_RES,
     cell: float = MANIPNET_VOXEL_CELL,
-    centre=MANIPNET_VOXEL_CENTER,
+    centre: tuple[float, float, float] | np.ndarray = MANIPNET_VOXEL_CENTER,
 ) -> np.ndarray:
     """Cell centres of the wrist-frame grid, ``(res, res, res, 3)`` (m), index order x, y, z."""
     ax = (np.arange(res) - (res - 1) / 2) * cell
@@ -161,10 +164,10 @@ def voxel_centres(
     return grid + np.asarray(centre, dtype=np.float64)
 
 
-def _to_object(points, obj_rot, obj_pos):
-    """World points (F, ..., 3) -> object frame, with object pose (F, 3, 3), (F, 3)."""
-    lead = (slice(None),) + (None,) * (points.ndim - 2)
-    return np.einsum("f...j,fjk->f...k", points - obj_pos[lead], obj_rot)  # R^T (x - t)
+def _to_object(points: np.ndarray, obj_rot: np.ndarray, obj_pos: np.ndarray) -> np.ndarray:
+    """World points (F, ..., 3) -> object frame, with the object pose as column rotations
+    (F, 3, 3) (world = R x + t) and translations (F, 3): ``R^T (x - t)``."""
+    return world_to_object(points, np.swapaxes(obj_rot, 1, 2), obj_pos)
 
 
 def _axis_angle_6d(aa: np.ndarray) -> np.ndarray:
@@ -174,17 +177,17 @@ def _axis_angle_6d(aa: np.ndarray) -> np.ndarray:
 
 
 def manipnet_features(
-    wrist_rot,
-    wrist_pos,
-    obj_rot,
-    obj_pos,
-    prev_hand_pose,
+    wrist_rot: np.ndarray,
+    wrist_pos: np.ndarray,
+    obj_rot: np.ndarray,
+    obj_pos: np.ndarray,
+    prev_hand_pose: np.ndarray,
     sdf: SdfFn,
     proximity_fn: ProximityFn,
-    frames=None,
+    frames: np.ndarray | list[int] | None = None,
     cfg: ManipNetConfig | None = None,
     cell: float = MANIPNET_VOXEL_CELL,
-    voxel_centre=MANIPNET_VOXEL_CENTER,
+    voxel_centre: tuple[float, float, float] | np.ndarray = MANIPNET_VOXEL_CENTER,
     dist_clip: float = MANIPNET_DIST_CLIP,
 ) -> ManipNetInputs:
     """ManipNet inputs for the frames ``frames`` (default all) of one sequence.
@@ -224,20 +227,18 @@ def manipnet_features(
     return ManipNetInputs(traj, voxels, distances, _axis_angle_6d(prev[t]))
 
 
-def hand_proximity_fn(hand) -> ProximityFn:
+def hand_proximity_fn(hand: torch.nn.Module) -> ProximityFn:
     """A :data:`ProximityFn` from a hand model (ProceduralHand): wrist rotation matrices are
     turned into axis-angle for ``hand.forward``; returns ``proximity_ids`` vertices."""
     from grip_bench.geometry.rotations import matrix_to_axis_angle
 
     ids = torch.tensor(np.asarray(hand.proximity_ids, dtype=np.int64))
 
-    def fn(rot, pos, pose):
+    def fn(rot: np.ndarray, pos: np.ndarray, pose: np.ndarray) -> np.ndarray:
         dtype = hand.template_vertices.dtype
+        t = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
         with torch.no_grad():
-            go = matrix_to_axis_angle(torch.as_tensor(rot, dtype=dtype))
-            verts = hand(go, torch.as_tensor(pose, dtype=dtype), torch.as_tensor(pos, dtype=dtype))[
-                0
-            ]
-        return verts[:, ids].double().numpy()
+            verts = hand(matrix_to_axis_angle(t(rot)), t(pose), t(pos))[0]
+        return verts[:, ids.to(verts.device)].double().cpu().numpy()
 
     return fn

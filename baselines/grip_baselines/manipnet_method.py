@@ -15,20 +15,26 @@ never read). The left hand is returned unchanged: ManipNet is a single-hand mode
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.constants import MANIPNET_FUTURE, MANIPNET_PAST, MANIPNET_VOXEL_RES
-from grip_bench.errors import InputError
+from grip_bench.core.constants import MANIPNET_FUTURE, MANIPNET_PAST, MANIPNET_VOXEL_RES
 from grip_bench.geometry.rotations import axis_angle_to_rotation_6d, rotation_6d_to_axis_angle
-from grip_bench.grip.losses import penetration_depth, proximity_attention, proximity_l1
+from grip_bench.methods.api import MethodSpec, PredictContext, register_method
+from grip_bench.nn.terms import penetration_depth, proximity_attention, proximity_l1
 
 from . import common as U
-from .manipnet import ManipNetConfig, manipnet_features
+from .manipnet import ManipNet, ManipNetConfig, manipnet_features
+
+if TYPE_CHECKING:
+    from grip_bench.bodies.hand import ProceduralHand
+    from grip_bench.data.library import ObjectLibrary
+    from grip_bench.data.sequence import Sequence
 
 
 @dataclass
@@ -63,13 +69,15 @@ class ManipNetTrainConfig:
     contact_vertices: int = 256  # hand vertices of those terms (a fixed stride subset)
 
 
-def proximity_fn(hand):
+def proximity_fn(
+    hand: ProceduralHand,
+) -> Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
     """Proximity vertices ``(M, 99, 3)`` for wrists ``rot (M,3,3)``, ``pos (M,3)`` and finger
     poses ``(M, 15, 3)``: each distinct pose is skinned once, then placed rigidly (the
     feature function repeats one pose on up to 11 wrists)."""
     ids = np.asarray(hand.proximity_ids)
 
-    def fn(rot, pos, pose):
+    def fn(rot: np.ndarray, pos: np.ndarray, pose: np.ndarray) -> np.ndarray:
         flat = np.asarray(pose, np.float64).reshape(len(pose), -1)
         uniq, inv = np.unique(flat, axis=0, return_inverse=True)
         local = U.pose_hand(hand, np.zeros((len(uniq), 3)), uniq, np.zeros((len(uniq), 3)))[0]
@@ -82,7 +90,7 @@ def proximity_fn(hand):
 class SeqData:
     """What the feature function needs of one sequence's right hand (numpy, float64)."""
 
-    def __init__(self, seq, library):
+    def __init__(self, seq: Sequence, library: ObjectLibrary) -> None:
         self.wrist_rot, self.wrist_pos = U.wrist_pose(seq.hand_params("right"))
         self.obj_rot, self.obj_pos = U.object_pose(seq)
         self.obj_name, self.scale = seq.obj_name, float(seq.hand_scale or 1.0)
@@ -92,8 +100,15 @@ class SeqData:
         self.sdf = lambda p: field.signed_distance(p, far="bound")  # noqa: E731
         self.prox = proximity_fn(U.seq_hand(seq, "right"))
 
-    def features(self, prev: np.ndarray, frames, cfg: ManipNetConfig):
-        """Feature tensors for ``frames``; ``prev (T, 15, 3)`` = previous pose of each frame."""
+    def features(
+        self,
+        prev: np.ndarray,
+        frames: np.ndarray | list[int],
+        cfg: ManipNetConfig,
+        device: U.Device = "cpu",
+    ) -> tuple[torch.Tensor, ...]:
+        """Feature tensors on ``device`` for ``frames``; ``prev (T, 15, 3)`` = previous pose
+        of each frame."""
         f = manipnet_features(
             self.wrist_rot,
             self.wrist_pos,
@@ -105,27 +120,36 @@ class SeqData:
             frames=np.asarray(frames),
             cfg=cfg,
         )
-        return f.torch()
+        return f.torch(device=device)
 
 
-def _cat(parts):
+def _cat(parts: list[tuple[torch.Tensor, ...]]) -> list[torch.Tensor]:
     return [torch.cat(x) for x in zip(*parts, strict=True)]
 
 
-def _teacher(d: SeqData, noise: float, rng) -> np.ndarray:
+def _teacher(d: SeqData, noise: float, rng: np.random.Generator) -> np.ndarray:
     """Previous poses (T, 15, 3): the ground truth of t-1 (t = 0 repeats itself), noised."""
     prev = np.concatenate([d.pose[:1], d.pose[:-1]])
     return prev + noise * rng.normal(size=prev.shape)
 
 
-def _build(seqs, library, cfg, noise, rng):
-    """Teacher-forced features of every frame: (data list, feature tensors, targets 6D, seq index)."""
+def _build(
+    seqs: list[Sequence],
+    library: ObjectLibrary,
+    cfg: ManipNetConfig,
+    noise: float,
+    rng: np.random.Generator,
+    device: U.Device = "cpu",
+) -> tuple[list[SeqData], list[torch.Tensor], torch.Tensor, np.ndarray]:
+    """Teacher-forced features of every frame on ``device``: (data list, feature tensors,
+    targets 6D, seq index)."""
     data = [SeqData(s, library) for s in seqs]
     feats, targets, owner = [], [], []
     for k, d in enumerate(data):
         prev = _teacher(d, noise, rng)
-        feats.append(d.features(prev, np.arange(len(d.pose)), cfg))
-        targets.append(torch.as_tensor(axis_angle_to_rotation_6d(d.pose), dtype=torch.float32))
+        feats.append(d.features(prev, np.arange(len(d.pose)), cfg, device))
+        targets.append(torch.as_tensor(axis_angle_to_rotation_6d(d.pose), dtype=torch.float32,
+                                       device=device))
         owner.append(np.full(len(d.pose), k))
     return data, _cat(feats), torch.cat(targets), np.concatenate(owner)
 
@@ -134,17 +158,28 @@ class ContactTerms:
     """GRIP's proximity L1 and the penetration depth of the predicted right hand, per frame
     row, read from each object's distance grid (differentiable in the pose)."""
 
-    def __init__(self, data: list[SeqData], library, n_vertices: int):
+    def __init__(
+        self, data: list[SeqData], library: ObjectLibrary, n_vertices: int,
+        device: U.Device = "cpu",
+    ) -> None:
         names = sorted({d.obj_name for d in data})
         self.fields = [library.field(n) for n in names]
-        hand = U.hand_model("right")
+        self.device = torch.device(device)
+        hand = U.hand_model("right", device=device)
         self.hand = U.SubsetHand(hand, U.vertex_subset(hand, n_vertices))
-        cat = lambda f: torch.as_tensor(np.concatenate([f(d) for d in data]), dtype=torch.float32)  # noqa: E731
+
+        def cat(f: Callable[[SeqData], np.ndarray]) -> torch.Tensor:
+            rows = np.concatenate([f(d) for d in data])
+            return torch.as_tensor(rows, dtype=torch.float32, device=device)
+
         n = lambda d: len(d.pose)  # noqa: E731
         self.wrist_rot, self.wrist_pos = cat(lambda d: d.wrist_rot), cat(lambda d: d.wrist_pos)
         self.obj_rot, self.obj_pos = cat(lambda d: d.obj_rot), cat(lambda d: d.obj_pos)
         self.scale = cat(lambda d: np.full(n(d), d.scale))
-        self.object = torch.as_tensor(np.concatenate([np.full(n(d), names.index(d.obj_name)) for d in data]))
+        # object index per frame row: on the CPU, beside the distance grids it selects
+        self.object = torch.as_tensor(
+            np.concatenate([np.full(n(d), names.index(d.obj_name)) for d in data])
+        )
         self.contact = np.concatenate([d.contact for d in data])
 
     def signed_distance(self, pose6: torch.Tensor, rows: np.ndarray) -> torch.Tensor:
@@ -152,13 +187,21 @@ class ContactTerms:
         at the wrists of frame rows ``rows``."""
         from grip_bench.geometry.distance import grid_signed_distance_many
 
-        r = torch.as_tensor(rows)
+        r = torch.as_tensor(rows, device=self.device)
         v = self.hand(None, rotation_6d_to_axis_angle(pose6), None)[0] * self.scale[r, None, None]
         world = torch.einsum("bij,bkj->bki", self.wrist_rot[r], v) + self.wrist_pos[r, None]
-        local = torch.einsum("bji,bkj->bki", self.obj_rot[r], world - self.obj_pos[r, None])  # R^T (x - t)
-        return grid_signed_distance_many(self.fields, self.object[r], local)
+        # world -> object frame, R^T (x - t) with column rotations (torch, differentiable;
+        # core.frames.world_to_object is its numpy counterpart)
+        local = torch.einsum("bji,bkj->bki", self.obj_rot[r], world - self.obj_pos[r, None])
+        # The distance grids live on the CPU (grip_bench.geometry): read them there; the
+        # transfer is differentiable and a no-op on the CPU.
+        which = torch.as_tensor(rows)
+        d = grid_signed_distance_many(self.fields, self.object[which], local.cpu())
+        return d.to(local.device)
 
-    def __call__(self, pred6, target6, rows: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    def __call__(
+        self, pred6: torch.Tensor, target6: torch.Tensor, rows: np.ndarray
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """(proximity L1, penetration depth) over the ground truth's contact frames in ``rows``."""
         keep = np.flatnonzero(self.contact[rows])
         if not len(keep):
@@ -170,7 +213,7 @@ class ContactTerms:
         return proximity_l1(proximity_attention(sd), proximity_attention(gt)), penetration_depth(sd)
 
 
-def _predict_all(net, feats, bs=1024) -> torch.Tensor:
+def _predict_all(net: ManipNet, feats: list[torch.Tensor], bs: int = 1024) -> torch.Tensor:
     net.eval()
     with torch.no_grad():
         return torch.cat(
@@ -178,9 +221,18 @@ def _predict_all(net, feats, bs=1024) -> torch.Tensor:
         )
 
 
-def _scheduled(net, data, feats, cfg: ManipNetConfig, share, rng):
-    """Features where a share of frames sees the model's own prediction of frame t-1."""
-    pred = rotation_6d_to_axis_angle(_predict_all(net, feats).double()).numpy()  # (N, 15, 3)
+def _scheduled(
+    net: ManipNet,
+    data: list[SeqData],
+    feats: list[torch.Tensor],
+    cfg: ManipNetConfig,
+    share: float,
+    rng: np.random.Generator,
+) -> list[torch.Tensor]:
+    """Features where a share of frames sees the model's own prediction of frame t-1
+    (computed in numpy from the predictions, then put back on the features' device)."""
+    device = feats[0].device
+    pred = rotation_6d_to_axis_angle(_predict_all(net, feats).double()).cpu().numpy()  # (N,15,3)
     feats = [x.clone() for x in feats]
     start = 0
     for d in data:
@@ -190,14 +242,22 @@ def _scheduled(net, data, feats, cfg: ManipNetConfig, share, rng):
         if len(pick):
             prev = np.concatenate([d.pose[:1], d.pose[:-1]])
             prev[pick] = pred[start + pick - 1]
-            new = d.features(prev, pick, cfg)
+            new = d.features(prev, pick, cfg, device)
             for x, y in zip(feats, new, strict=True):
                 x[start + pick] = y
         start += n
     return feats
 
 
-def _loss(net, feats, target, idx, hand: U.SubsetHand, cfg, contact: ContactTerms | None = None):
+def _loss(
+    net: ManipNet,
+    feats: list[torch.Tensor],
+    target: torch.Tensor,
+    idx: np.ndarray,
+    hand: U.SubsetHand,
+    cfg: ManipNetTrainConfig,
+    contact: ContactTerms | None = None,
+) -> torch.Tensor:
     """Pose L2 + vertex L1 over ``hand``'s vertex subset (+ the contact terms)."""
     pred = net(*(x[idx] for x in feats))  # (B, 15, 6)
     loss = (pred - target[idx]).pow(2).mean()
@@ -212,7 +272,15 @@ def _loss(net, feats, target, idx, hand: U.SubsetHand, cfg, contact: ContactTerm
     return loss
 
 
-def train_manipnet(name, data_dir, cfg: ManipNetTrainConfig, seed, progress):
+def train_manipnet(
+    name: str,
+    data_dir: Path,
+    cfg: ManipNetTrainConfig,
+    seed: int,
+    progress: bool,
+    device: U.Device = "cpu",
+) -> tuple[ManipNet, int]:
+    """The finger model, built and trained on ``device``; returns (net, n_frames)."""
     from grip_bench.data.library import ObjectLibrary
 
     torch.manual_seed(seed)
@@ -228,12 +296,12 @@ def train_manipnet(name, data_dir, cfg: ManipNetTrainConfig, seed, progress):
         n_blocks=cfg.n_blocks,
         dropout=cfg.dropout,
     )
-    net = ncfg.build()
-    data, feats, target, owner = _build(seqs, library, ncfg, cfg.prev_noise, rng)
+    net = ncfg.build().to(device)
+    data, feats, target, owner = _build(seqs, library, ncfg, cfg.prev_noise, rng, device)
     U.log(progress, name, f"{len(owner)} frames of {len(seqs)} sequences")
-    hand = U.hand_model("right")
+    hand = U.hand_model("right", device=device)
     vhand = U.SubsetHand(hand, U.vertex_subset(hand, cfg.loss_vertices))  # skin only those
-    contact = (ContactTerms(data, library, cfg.contact_vertices)
+    contact = (ContactTerms(data, library, cfg.contact_vertices, device)
                if cfg.w_proximity or cfg.w_penetration else None)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     teacher = feats
@@ -261,44 +329,54 @@ class ManipNetMethod(U.TrainedMethod):
 
     section, config_cls, networks = "manipnet", ManipNetTrainConfig, {"manipnet": ManipNetConfig}
 
-    def __init__(self, name: str):
+    def __init__(self, name: str) -> None:
         super().__init__(name)
-        self.net = None
+        self.net: ManipNet | None = None
 
-    def fit(self, data_dir: Path, cfg: ManipNetTrainConfig, seed: int, progress: bool):
-        net, n = train_manipnet(self.name, data_dir, cfg, seed, progress)
+    def fit(
+        self, data_dir: Path, cfg: ManipNetTrainConfig, seed: int, progress: bool,
+        device: torch.device,
+    ) -> tuple[dict[str, torch.nn.Module], dict]:
+        net, n = train_manipnet(self.name, data_dir, cfg, seed, progress, device)
         return {"manipnet": net}, {"n_samples": n}
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        self.net = self.load_checkpoint(checkpoint)[0]["manipnet"]
+        self.net = self.load_checkpoint(checkpoint, device)[0]["manipnet"]
 
-    def predict(self, seq, ctx: PredictContext):
-        """Autoregressive right-hand fingers; wrists and the left hand as in the input."""
-        if self.net is None:
-            raise InputError("load a checkpoint before predicting", self.name)
+    def predict(self, seq: Sequence, ctx: PredictContext) -> Sequence:
+        """Autoregressive right-hand fingers; wrists and the left hand as in the input.
+
+        The network runs on the device :meth:`load` put it on. Each frame's distance
+        features are computed in numpy from the pose just predicted (the object's distance
+        field is a CPU structure), so that pose (45 numbers) comes back once per frame;
+        the outputs stay on the device and come back together at the end.
+        """
+        self._loaded(self.net)
+        dev = self.device
         d = SeqData(seq, ctx.library)
         T = seq.n_frames
         prev = np.zeros((T, 15, 3))
-        out = np.zeros((T, 15, 3))
+        outs = []
         state = U.seq_hand(seq, "right").named_pose("relaxed").double().numpy()  # (15, 3)
         self.net.eval()
         with U.single_thread(), torch.no_grad():
             for t in range(T):
                 prev[t] = state
-                feats = d.features(prev, [t], self.net.cfg)
-                pose6 = self.net(*feats)
-                state = rotation_6d_to_axis_angle(pose6.double())[0].numpy()
-                out[t] = state
+                pose = rotation_6d_to_axis_angle(self.net(*d.features(prev, [t], self.net.cfg,
+                                                                       dev)).double())[0]
+                outs.append(pose)
+                state = pose.cpu().numpy()  # the next frame's features need it in numpy
+        out = torch.stack(outs).cpu().numpy() if outs else np.zeros((0, 15, 3))
         return seq.with_hands(right={"hand_pose": out.reshape(T, 45)})
 
 
 register_method(
     MethodSpec(
         name="manipnet",
-        description="ManipNet-style autoregressive right-hand fingers at the input wrists (left unchanged)",
+        description="ManipNet-style autoregressive right-hand fingers at the input wrists "
+        "(left unchanged)",
         factory=ManipNetMethod,
         needs=("object", "wrists"),
-        tables=("table4_grasp",),
         hands=("right",),
         predict_cost=3.0,  # autoregressive: one network call per frame
     )

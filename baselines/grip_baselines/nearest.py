@@ -16,18 +16,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
 from torch import nn
 
-from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.errors import InputError
+from grip_bench.core.frames import NET_SIDES, SIDES, mirror_pose
+from grip_bench.methods.api import MethodSpec, PredictContext, register_method
 
 from . import common as U
 
-NET_SIDES = ("left", "right")  # order of grip_bench.sensors' (T, 2, ...) arrays
+if TYPE_CHECKING:
+    from grip_bench.data.library import ObjectLibrary
+    from grip_bench.data.sequence import Sequence
 
 
 @dataclass
@@ -52,9 +55,10 @@ class NearestIndexConfig:
 
 
 class NearestIndex(nn.Module):
-    """Buffers only: PCA ``mean (D,)``, ``components (k, D)``, ``keys (N, k)``, ``poses (N, 45)``."""
+    """Buffers only: PCA ``mean (D,)``, ``components (k, D)``, ``keys (N, k)``,
+    ``poses (N, 45)``."""
 
-    def __init__(self, cfg: NearestIndexConfig):
+    def __init__(self, cfg: NearestIndexConfig) -> None:
         super().__init__()
         self.cfg = cfg
         self.register_buffer("mean", torch.zeros(cfg.feat_dim, dtype=torch.float64))
@@ -67,29 +71,32 @@ class NearestIndex(nn.Module):
         self.register_buffer("poses", torch.zeros(cfg.n_items, 45, dtype=torch.float64))
 
     def reduce(self, feats: np.ndarray) -> np.ndarray:
-        """Features (M, D) -> PCA keys (M, k)."""
-        return (feats - self.mean.numpy()) @ self.components.numpy().T
+        """Features (M, D) -> PCA keys (M, k) (numpy, float64, on the CPU)."""
+        return (feats - self.mean.cpu().numpy()) @ self.components.cpu().numpy().T
 
 
-def sensor_features(library, seq) -> np.ndarray:
-    """Per hand and frame keys ``(2, T, D)`` in :data:`common.SIDES` order (right, left)."""
+def sensor_features(library: ObjectLibrary, seq: Sequence) -> np.ndarray:
+    """Per hand and frame keys ``(2, T, D)`` in :data:`~grip_bench.core.frames.SIDES` order
+    (right, left)."""
     from grip_bench.sensors import stage_one
 
     s = stage_one(library, seq)
     amb, prox = s.ambient.astype(np.float64), s.proximity.astype(np.float64)
     w = np.sqrt(amb.shape[-1] / prox.shape[-1])
     feats = np.concatenate([amb, w * prox], -1)  # (T, 2, D), hands (left, right)
-    return np.stack([feats[:, NET_SIDES.index(side)] for side in U.SIDES])
+    return np.stack([feats[:, NET_SIDES.index(side)] for side in SIDES])
 
 
-def _training_items(seqs, library, cfg: NearestTrainConfig, seed: int):
+def _training_items(
+    seqs: list[Sequence], library: ObjectLibrary, cfg: NearestTrainConfig, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
     feats, poses = [], []
     for seq in seqs:
         f = sensor_features(library, seq)
-        for k, side in enumerate(U.SIDES):
+        for k, side in enumerate(SIDES):
             pose = np.asarray(seq.hand_params(side)["hand_pose"], float)
             feats.append(f[k])
-            poses.append(U.mirror_pose(pose) if side == "left" else pose)
+            poses.append(mirror_pose(pose) if side == "left" else pose)
     feats, poses = np.concatenate(feats), np.concatenate(poses)
     if cfg.max_frames and len(feats) > cfg.max_frames:
         keep = np.sort(
@@ -113,46 +120,65 @@ def build_index(feats: np.ndarray, poses: np.ndarray, n_components: int) -> Near
 
 
 class NearestMethod(U.TrainedMethod):
-    """Retrieval of training finger poses by sensor similarity."""
+    """Retrieval of training finger poses by sensor similarity.
+
+    The index (a buffers-only module) is put on the requested device like every
+    baseline's networks; the search itself is a KD-tree (scipy, CPU), so :meth:`load`
+    also keeps CPU copies of what the search reads (PCA, keys, poses), taken once.
+    """
 
     section, config_cls, networks = "nearest", NearestTrainConfig, {"index": NearestIndexConfig}
 
-    def __init__(self, name: str):
+    def __init__(self, name: str) -> None:
         super().__init__(name)
-        self.index = self.tree = None
+        self.index: NearestIndex | None = None
+        self.tree: cKDTree | None = None
+        self._cpu: NearestIndex | None = None
 
-    def fit(self, data_dir: Path, cfg: NearestTrainConfig, seed: int, progress: bool):
+    def fit(
+        self, data_dir: Path, cfg: NearestTrainConfig, seed: int, progress: bool,
+        device: torch.device,
+    ) -> tuple[dict[str, torch.nn.Module], dict]:
         from grip_bench.data.library import ObjectLibrary
 
         seqs = U.train_sequences(data_dir, cfg.max_sequences, seed)
         feats, poses = _training_items(seqs, ObjectLibrary(data_dir), cfg, seed)
-        index = build_index(feats, poses, cfg.n_components)
+        index = build_index(feats, poses, cfg.n_components).to(device)
         U.log(progress, self.name, f"indexed {len(feats)} hand frames")
         return {"index": index}, {"n_samples": len(feats)}
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        self.index = self.load_checkpoint(checkpoint)[0]["index"]
-        self.tree = cKDTree(self.index.keys.numpy())
+        self.index = self.load_checkpoint(checkpoint, device)[0]["index"]
+        self._cpu = self.index if self.device.type == "cpu" else _cpu_copy(self.index)
+        self.tree = cKDTree(self._cpu.keys.numpy())
 
-    def predict(self, seq, ctx: PredictContext):
+    def predict(self, seq: Sequence, ctx: PredictContext) -> Sequence:
         """Both hands' fingers copied from the nearest training frames; wrists kept."""
-        if self.tree is None:
-            raise InputError("load a checkpoint before predicting", self.name)
+        self._loaded(self.tree)
+        index = self._cpu
         feats = sensor_features(ctx.library, seq)
         new = {}
-        for k, side in enumerate(U.SIDES):
-            _, nn_idx = self.tree.query(self.index.reduce(feats[k]))
-            pose = self.index.poses.numpy()[nn_idx]
-            new[side] = {"hand_pose": U.mirror_pose(pose) if side == "left" else pose}
+        for k, side in enumerate(SIDES):
+            _, nn_idx = self.tree.query(index.reduce(feats[k]))
+            pose = index.poses.numpy()[nn_idx]
+            new[side] = {"hand_pose": mirror_pose(pose) if side == "left" else pose}
         return seq.with_hands(**new)
+
+
+def _cpu_copy(index: NearestIndex) -> NearestIndex:
+    """A CPU copy of an index on another device (the original stays where it is)."""
+    out = NearestIndexConfig(index.cfg.n_items, index.cfg.feat_dim, index.cfg.n_components)
+    copy = out.build()
+    copy.load_state_dict({k: v.cpu() for k, v in index.state_dict().items()})
+    return copy
 
 
 register_method(
     MethodSpec(
         name="nearest-neighbour",
-        description="copy the finger pose of the training frame with the nearest GRIP sensor reading",
+        description="copy the finger pose of the training frame with the nearest GRIP sensor "
+        "reading",
         factory=NearestMethod,
         needs=("object", "wrists", "train_data"),
-        tables=(),
     )
 )

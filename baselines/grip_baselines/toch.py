@@ -30,9 +30,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from grip_bench.constants import TOCH_MAX_DIST, TOCH_WINDOW
-from grip_bench.errors import InputError
-from grip_bench.grip.blocks import check_config, check_shape
+from grip_bench.core.constants import TOCH_MAX_DIST, TOCH_WINDOW
+from grip_bench.core.errors import InputError
+from grip_bench.nn.blocks import check_config, check_shape
 
 __all__ = [
     "CorrespondenceField",
@@ -56,7 +56,10 @@ _SPHERE_MARGIN = 1e-9  # m; bounding spheres are padded so rounding never culls 
 # ----------------------------------------------------------------------------- ray casting
 
 
-def _near_segment(o, d, centre, radius, max_dist):
+def _near_segment(
+    o: torch.Tensor, d: torch.Tensor, centre: torch.Tensor, radius: torch.Tensor,
+    max_dist: float,
+) -> torch.Tensor:
     """Whether spheres ``(centre, radius)`` come within reach of the segments
     ``o + t d, |t| <= max_dist``; broadcasts over leading dims, ``(...)`` bool."""
     w = centre - o
@@ -76,7 +79,9 @@ def _morton_order(points: torch.Tensor) -> torch.Tensor:
     return torch.argsort(code)
 
 
-def _sphere_tree(centre, radius):
+def _sphere_tree(
+    centre: torch.Tensor, radius: torch.Tensor
+) -> tuple[torch.Tensor, list[tuple[torch.Tensor, torch.Tensor]]]:
     """Bounding-sphere hierarchy over triangles sorted along a Z-order curve.
 
     Level 0 is the sorted triangles; a node of level k bounds ``_BRANCH`` consecutive
@@ -96,7 +101,10 @@ def _sphere_tree(centre, radius):
     return order, levels
 
 
-def _candidates(o, d, centre, radius, max_dist):
+def _candidates(
+    o: torch.Tensor, d: torch.Tensor, centre: torch.Tensor, radius: torch.Tensor,
+    max_dist: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Broad phase: ray/triangle pairs ``(rows, faces)`` whose bounding spheres come
     within reach of the ray segments, found by descending the sphere tree."""
     order, levels = _sphere_tree(centre, radius)
@@ -113,7 +121,9 @@ def _candidates(o, d, centre, radius, max_dist):
     return pairs // len(order), order[pairs % len(order)]
 
 
-def _moller_trumbore(o, d, v0, e1, e2):
+def _moller_trumbore(
+    o: torch.Tensor, d: torch.Tensor, v0: torch.Tensor, e1: torch.Tensor, e2: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Exact (float64) ray-triangle test on pairs ``(P, 3)`` -> t, u, v ``(P,)`` and a hit mask."""
     p = torch.linalg.cross(d, e2, dim=-1)
     det = (e1 * p).sum(-1)
@@ -138,7 +148,13 @@ def _nearest_per_ray(rows: np.ndarray, key: np.ndarray, n: int) -> np.ndarray:
     return best
 
 
-def ray_mesh_hits(origins, directions, vertices, faces, max_dist: float = TOCH_MAX_DIST):
+def ray_mesh_hits(
+    origins: np.ndarray,
+    directions: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    max_dist: float = TOCH_MAX_DIST,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The correspondence rule of this module for rays against one closed mesh.
 
     origins, directions (N, 3) (unit directions); vertices (V, 3); faces (F, 3).
@@ -204,11 +220,11 @@ class CorrespondenceField:
 
 
 def correspondence_field(
-    obj_points,
-    obj_normals,
-    hand_vertices,
-    hand_faces,
-    canonical_hand_vertices,
+    obj_points: np.ndarray,
+    obj_normals: np.ndarray,
+    hand_vertices: np.ndarray,
+    hand_faces: np.ndarray,
+    canonical_hand_vertices: np.ndarray,
     max_dist: float = TOCH_MAX_DIST,
 ) -> CorrespondenceField:
     """TOCH correspondence field of one frame (rule in the module docstring).
@@ -262,7 +278,7 @@ class TemporalAEConfig:
     skip_kernel: int = 5
     decoder_hidden: int = 256  # per-point decoder: hidden widths decoder_hidden, half of it
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_config(self, may_be_zero=("skip_dim",))
         if self.field_dim != FIELD_DIM:
             raise ValueError(f"TemporalAEConfig.field_dim must be {FIELD_DIM}")
@@ -292,7 +308,7 @@ class TemporalAE(nn.Module):
     where the hand is as a whole, the skip path keeps the per-point detail.
     """
 
-    def __init__(self, cfg: TemporalAEConfig):
+    def __init__(self, cfg: TemporalAEConfig) -> None:
         super().__init__()
         self.cfg = cfg
         geo = 6  # position, normal
@@ -352,7 +368,7 @@ class TemporalAE(nn.Module):
         return self._scale_field(out, inverse=True)  # (B, T, N, 5)
 
 
-def hit_pos_weight(hits, max_weight: float = 50.0) -> float:
+def hit_pos_weight(hits: torch.Tensor | np.ndarray, max_weight: float = 50.0) -> float:
     """BCE weight of the positive (hit) class: ``#misses / #hits`` of target fields
     ``(..., N)`` in {0, 1}, at most ``max_weight`` (1 when there is no hit).
 
@@ -376,7 +392,7 @@ def field_losses(
     w_dist: float = 1.0,
     w_corr: float = 1.0,
     pos_weight: float = 1.0,
-):
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """TemporalAE loss: BCE on hits, L1 on distance and canonical point where the target hits.
 
     pred (..., 5) with hit logits; target (..., 5) with hits in {0, 1}; lengths in metres,
@@ -425,7 +441,9 @@ class FitResult:
     losses: list[float]  # total loss per iteration
 
 
-def _surface_anchors(canonical_points, canonical_vertices, faces):
+def _surface_anchors(
+    canonical_points: np.ndarray, canonical_vertices: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Project canonical correspondences onto the canonical hand: face ``(M,)``, bary ``(M, 3)``."""
     v = np.ascontiguousarray(canonical_vertices, np.float64)
     f = np.ascontiguousarray(faces, np.int64)
@@ -445,14 +463,14 @@ def _accel(x: torch.Tensor) -> torch.Tensor:
 
 
 def fit_hand_to_field(
-    obj_points,
-    obj_normals,
-    hit,
-    distance,
-    canonical,
+    obj_points: np.ndarray,
+    obj_normals: np.ndarray,
+    hit: np.ndarray,
+    distance: np.ndarray,
+    canonical: np.ndarray,
     hand_forward: HandForward,
-    canonical_vertices,
-    hand_faces,
+    canonical_vertices: np.ndarray,
+    hand_faces: np.ndarray,
     init_global_orient: torch.Tensor,
     init_hand_pose: torch.Tensor,
     init_transl: torch.Tensor,
@@ -468,14 +486,15 @@ def fit_hand_to_field(
     the input. init_* (T, 3), (T, 15, 3), (T, 3) axis-angle / metres. Adam, ``n_iters``.
     ``subset_forward(ids)``, if given, returns a ``hand_forward`` that poses only the
     vertices ``ids (K,)`` (``(T, K, 3)``); the fit then skins just the corners of the
-    triangles it anchors to instead of the whole hand at every step.
+    triangles it anchors to instead of the whole hand at every step. The fit runs on the
+    device of the ``init_*`` tensors (``hand_forward`` must pose the hand there).
     """
     cfg = cfg or FitConfig()
     hit = np.asarray(hit, bool)
     t_idx, p_idx = np.nonzero(hit)
     if len(t_idx) == 0:
         raise InputError("the field has no hits: nothing to fit", where="fit_hand_to_field")
-    dtype = init_hand_pose.dtype
+    dtype, dev = init_hand_pose.dtype, init_hand_pose.device
     target = (
         np.asarray(obj_points)[t_idx, p_idx]
         + np.asarray(distance)[t_idx, p_idx, None] * np.asarray(obj_normals)[t_idx, p_idx]
@@ -488,10 +507,10 @@ def fit_hand_to_field(
         needed, corners = np.unique(corners, return_inverse=True)
         hand_forward = subset_forward(needed)
         corners = corners.reshape(-1, 3)  # (M, 3) rows of the posed subset
-    corners = torch.as_tensor(corners)
-    bary_t = torch.as_tensor(bary, dtype=dtype)
-    target_t = torch.as_tensor(target, dtype=dtype)
-    frames = torch.as_tensor(t_idx)
+    corners = torch.as_tensor(corners, device=dev)
+    bary_t = torch.as_tensor(bary, dtype=dtype, device=dev)
+    target_t = torch.as_tensor(target, dtype=dtype, device=dev)
+    frames = torch.as_tensor(t_idx, device=dev)
 
     orient = init_global_orient.detach().clone().requires_grad_(cfg.fit_orient)
     pose = init_hand_pose.detach().clone().requires_grad_(True)
@@ -518,5 +537,6 @@ def fit_hand_to_field(
         loss.backward()
         opt.step()
         sched.step()
-        history.append(loss.item())
-    return FitResult(orient.detach(), pose.detach(), transl.detach(), history)
+        history.append(loss.detach())  # no device sync per step; read once at the end
+    losses = torch.stack(history).tolist() if history else []
+    return FitResult(orient.detach(), pose.detach(), transl.detach(), losses)

@@ -23,26 +23,30 @@ hit, keep the input hand.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 import trimesh
 
-from grip_bench.bench.methods import MethodSpec, PredictContext, register_method
-from grip_bench.constants import (
+from grip_bench.core.constants import (
     TOCH_HIT_THRESHOLD,
     TOCH_INTERACTION_DISTANCE,
     TOCH_R_SIGMAS,
     TOCH_T_SIGMAS,
     TOCH_WINDOW,
 )
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
+from grip_bench.core.frames import mirror_points
+from grip_bench.methods.api import MethodSpec, PredictContext, register_method
 
 from . import common as U
 from .toch import (
     FitConfig,
+    TemporalAE,
     TemporalAEConfig,
     correspondence_field,
     field_losses,
@@ -50,8 +54,12 @@ from .toch import (
     hit_pos_weight,
 )
 
+if TYPE_CHECKING:
+    from grip_bench.data.library import ObjectLibrary
+    from grip_bench.data.sequence import Sequence
+
 PERTURBATIONS = tuple(("T", s) for s in TOCH_T_SIGMAS) + tuple(("R", s) for s in TOCH_R_SIGMAS)
-MIRROR_X = np.array([-1.0, 1.0, 1.0])
+Window = tuple["Sequence", str, int]  # (sequence, side, first frame) of a training window
 
 
 @dataclass
@@ -84,35 +92,38 @@ class TochTrainConfig:
 
 
 @functools.lru_cache(maxsize=64)
-def _samples(library, name: str, n: int) -> tuple[np.ndarray, np.ndarray]:
+def _samples(library: ObjectLibrary, name: str, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Seeded surface samples (n, 3) and outward unit normals (n, 3) of one object (m)."""
     mesh = library.mesh(name)
     pts, face = trimesh.sample.sample_surface(mesh, n, seed=0)
     return np.asarray(pts, float), np.asarray(mesh.face_normals[face], float)
 
 
-def hand_fields(library, seq, side: str, params: dict, frames, n_points: int) -> np.ndarray:
+def hand_fields(
+    library: ObjectLibrary,
+    seq: Sequence,
+    side: str,
+    params: dict,
+    frames: np.ndarray,
+    n_points: int,
+) -> np.ndarray:
     """Correspondence fields (F, N, 5) of one hand over ``frames``, canonical points in
     the right hand's canonical space (left mirrored)."""
     pts, nrm = _samples(library, seq.obj_name, n_points)
     hand = U.seq_hand(seq, side)
     sub = {k: np.asarray(v)[frames] for k, v in params.items()}
     world = U.pose_hand(hand, sub["global_orient"], sub["hand_pose"], sub["transl"])[0]
-    local = _to_object(seq, frames, world)
+    local = U.to_object(seq, world, frames)
     faces, canon = np.asarray(hand.faces), hand.template_vertices.double().numpy()
     out = np.stack([correspondence_field(pts, nrm, v, faces, canon).as_array() for v in local])
     if side == "left":
-        out[..., 2:] *= MIRROR_X
+        out[..., 2:] = mirror_points(out[..., 2:])
     return out
 
 
-def _to_object(seq, frames, world: np.ndarray) -> np.ndarray:
-    """World points (F, V, 3) of ``frames`` -> object frame."""
-    R, t = (x[frames] for x in U.object_pose(seq))
-    return np.einsum("fji,fvj->fvi", R, world - t[:, None])
-
-
-def interaction_frames(library, seq, side: str, params: dict, dist: float) -> np.ndarray:
+def interaction_frames(
+    library: ObjectLibrary, seq: Sequence, side: str, params: dict, dist: float
+) -> np.ndarray:
     """(T,) bool: the hand comes within ``dist`` (m) of the object."""
     return (U.signed_distance(library, seq, U.seq_vertices(seq, side, params)) <= dist).any(1)
 
@@ -134,7 +145,9 @@ def windows_of(mask: np.ndarray, length: int) -> list[np.ndarray]:
 # ----------------------------------------------------------------------------- training
 
 
-def _training_windows(seqs, library, cfg: TochTrainConfig, rng):
+def _training_windows(
+    seqs: list[Sequence], library: ObjectLibrary, cfg: TochTrainConfig, rng: np.random.Generator
+) -> list[Window]:
     """(seq, side, start) of up to ``max_windows`` windows holding at least one
     ground-truth interaction frame, at most ``windows_per_hand`` per sequence and hand.
 
@@ -168,8 +181,15 @@ def _training_windows(seqs, library, cfg: TochTrainConfig, rng):
     return out[: cfg.max_windows or len(out)]
 
 
-def _window_tensors(windows, library, cfg, seed):
-    """Stacked (points, normals, noisy field, clean field) over the windows, float32."""
+def _window_tensors(
+    windows: list[Window],
+    library: ObjectLibrary,
+    cfg: TochTrainConfig,
+    seed: int,
+    device: U.Device = "cpu",
+) -> list[torch.Tensor]:
+    """Stacked (points, normals, noisy field, clean field) over the windows, float32, on
+    ``device``."""
     from grip_bench.data.perturb import perturb_sequence
 
     P, Nn, X, Y = [], [], [], []
@@ -183,11 +203,21 @@ def _window_tensors(windows, library, cfg, seed):
         centre = library.mesh(seq.obj_name).centroid
         P.append(np.broadcast_to(pts - centre, (cfg.window, *pts.shape)))
         Nn.append(np.broadcast_to(nrm, (cfg.window, *nrm.shape)))
-    return [torch.as_tensor(np.stack(a), dtype=torch.float32) for a in (P, Nn, X, Y)]
+    return [
+        torch.as_tensor(np.stack(a), dtype=torch.float32, device=device) for a in (P, Nn, X, Y)
+    ]
 
 
-def train_toch(name, data_dir, cfg: TochTrainConfig, seed, progress):
-    """The field denoiser; hits weighted by the class ratio of the training targets."""
+def train_toch(
+    name: str,
+    data_dir: Path,
+    cfg: TochTrainConfig,
+    seed: int,
+    progress: bool,
+    device: U.Device = "cpu",
+) -> tuple[TemporalAE, int]:
+    """The field denoiser, trained on ``device``; hits weighted by the class ratio of the
+    training targets."""
     from grip_bench.data.library import ObjectLibrary
 
     torch.manual_seed(seed)
@@ -195,13 +225,14 @@ def train_toch(name, data_dir, cfg: TochTrainConfig, seed, progress):
     library = ObjectLibrary(data_dir)
     seqs = U.train_sequences(data_dir, cfg.max_sequences, seed)
     windows = _training_windows(seqs, library, cfg, rng)
-    pts, nrm, noisy, clean = _window_tensors(windows, library, cfg, seed)
+    pts, nrm, noisy, clean = _window_tensors(windows, library, cfg, seed, device)
     pos_weight = hit_pos_weight(clean[..., 0]) ** cfg.hit_balance
     U.log(
         progress,
         name,
         f"{len(windows)} windows of {cfg.window} frames; "
-        f"{float(clean[..., 0].mean()):.1%} of the object points are hits, weighted x{pos_weight:.2f}",
+        f"{float(clean[..., 0].mean()):.1%} of the object points are hits, "
+        f"weighted x{pos_weight:.2f}",
     )
     net = TemporalAEConfig(
         local_dim=cfg.local_dim,
@@ -210,7 +241,7 @@ def train_toch(name, data_dir, cfg: TochTrainConfig, seed, progress):
         window=cfg.window,
         skip_dim=cfg.skip_dim,
         decoder_hidden=cfg.decoder_hidden,
-    ).build()
+    ).build().to(device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     for epoch in range(cfg.epochs):
         net.train()
@@ -234,87 +265,120 @@ class TochMethod(U.TrainedMethod):
 
     section, config_cls, networks = "toch", TochTrainConfig, {"toch": TemporalAEConfig}
 
-    def __init__(self, name: str):
+    def __init__(self, name: str) -> None:
         super().__init__(name)
-        self.net = None
+        self.net: TemporalAE | None = None
         self.cfg = TochTrainConfig()
 
-    def fit(self, data_dir: Path, cfg: TochTrainConfig, seed: int, progress: bool):
-        net, n = train_toch(self.name, data_dir, cfg, seed, progress)
+    def fit(
+        self, data_dir: Path, cfg: TochTrainConfig, seed: int, progress: bool,
+        device: torch.device,
+    ) -> tuple[dict[str, torch.nn.Module], dict]:
+        net, n = train_toch(self.name, data_dir, cfg, seed, progress, device)
         return {"toch": net}, {"n_samples": n}
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        nets, ck = self.load_checkpoint(checkpoint)
+        nets, ck = self.load_checkpoint(checkpoint, device)
         self.net = nets["toch"]
         self.cfg = TochTrainConfig(**ck.meta["train_config"])
 
-    def predict(self, seq, ctx: PredictContext):
-        """Both hands refined on their interaction frames; everything else as in the input."""
-        if self.net is None:
-            raise InputError("load a checkpoint before predicting", self.name)
+    def predict(self, seq: Sequence, ctx: PredictContext) -> Sequence:
+        """Both hands refined on their interaction frames; everything else as in the input
+        (the denoiser and the fit run on the device :meth:`load` put the network on)."""
+        self._loaded(self.net)
         with U.single_thread():
             new = {side: self._refine_side(seq, ctx.library, side) for side in U.SIDES}
         return seq.with_hands(**new)
 
-    def _refine_side(self, seq, library, side: str) -> dict:
+    def _refine_side(self, seq: Sequence, library: ObjectLibrary, side: str) -> dict:
         """Per run of interaction frames: denoise its windows, then fit the run at once
         (one smoothness term across the window borders, and one optimisation per run
-        instead of one per window)."""
+        instead of one per window). The fitted runs come back to numpy at the end."""
         cfg = self.cfg
         p = {
             k: np.array(seq.hand_params(side)[k], float)
             for k in ("global_orient", "hand_pose", "transl")
         }
         near = interaction_frames(library, seq, side, p, cfg.interaction_distance)
+        fitted = []
         for run in windows_of(near, seq.n_frames):
             fields = [
                 self._denoise(seq, library, side, p, w) for w in windows_of_run(run, cfg.window)
             ]
-            hit, dist, canon = (np.concatenate(x) for x in zip(*fields, strict=True))
+            hit, dist, canon = (torch.cat(x).cpu().numpy() for x in zip(*fields, strict=True))
             fit = self._fit_run(seq, side, p, run, hit, dist, canon, library)
             if fit is not None:
-                p["global_orient"][run], p["hand_pose"][run], p["transl"][run] = fit
+                fitted.append((run, fit))
+        # Runs are disjoint, so writing them after all the fits reads the same input.
+        for run, fit in fitted:
+            go, pose, transl = (x.double().cpu().numpy() for x in fit)
+            p["global_orient"][run], p["hand_pose"][run], p["transl"][run] = (
+                go, pose.reshape(len(run), 45), transl
+            )
         return p
 
-    def _denoise(self, seq, library, side, p, frames):
-        """Denoised field of one window: hit (F, N) bool, distance (F, N), canonical (F, N, 3)."""
-        cfg = self.cfg
+    def _denoise(
+        self, seq: Sequence, library: ObjectLibrary, side: str, p: dict, frames: np.ndarray
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Denoised field of one window, on the network's device: hit (F, N) bool,
+        distance (F, N), canonical (F, N, 3) (float64)."""
+        cfg, dev = self.cfg, self.device
         pts, nrm = _samples(library, seq.obj_name, cfg.n_points)
         field = hand_fields(library, seq, side, p, frames, cfg.n_points)
 
-        def per_frame(a):  # (N, 3) fixed in the object frame -> (1, F, N, 3)
+        def per_frame(a: np.ndarray) -> torch.Tensor:  # (N, 3) in the object frame -> (1, F, N, 3)
             return torch.as_tensor(
-                np.broadcast_to(a, (len(frames), *a.shape)).copy(), dtype=torch.float32
+                np.broadcast_to(a, (len(frames), *a.shape)).copy(), dtype=torch.float32,
+                device=dev,
             )[None]
 
         centre = library.mesh(seq.obj_name).centroid
         with torch.no_grad():
-            noisy = torch.as_tensor(field, dtype=torch.float32)[None]
-            out = self.net(per_frame(pts - centre), per_frame(nrm), noisy)[0].double().numpy()
-        canon = out[..., 2:] * (MIRROR_X if side == "left" else 1.0)
-        hit = torch.sigmoid(torch.as_tensor(out[..., 0])).numpy() > cfg.hit_threshold
+            noisy = torch.as_tensor(field, dtype=torch.float32, device=dev)[None]
+            out = self.net(per_frame(pts - centre), per_frame(nrm), noisy)[0].double()
+        canon = mirror_points(out[..., 2:]) if side == "left" else out[..., 2:]
+        hit = torch.sigmoid(out[..., 0]) > cfg.hit_threshold
         return hit, out[..., 1], canon
 
-    def _fit_run(self, seq, side, p, frames, hit, dist, canon, library):
-        """Hand params (go (F,3), pose (F,45), transl (F,3)) of ``frames`` fitted to their
-        denoised fields, or None when the fields have no hit."""
+    def _fit_run(
+        self,
+        seq: Sequence,
+        side: str,
+        p: dict,
+        frames: np.ndarray,
+        hit: np.ndarray,
+        dist: np.ndarray,
+        canon: np.ndarray,
+        library: ObjectLibrary,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:
+        """Hand params (go (F,3), pose (F,15,3), transl (F,3), tensors on the network's
+        device) of ``frames`` fitted to their denoised fields, or None when the fields have
+        no hit."""
         if not hit.any():
             return None
+        dev = self.device
         pts, nrm = _samples(library, seq.obj_name, self.cfg.n_points)
         F = len(frames)
-        hand = U.seq_hand(seq, side)
-        R, t = (torch.as_tensor(x[frames], dtype=torch.float32) for x in U.object_pose(seq))
+        hand = U.seq_hand(seq, side, dev)
+        R, t = (
+            torch.as_tensor(x[frames], dtype=torch.float32, device=dev)
+            for x in U.object_pose(seq)
+        )
 
-        def subset_forward(ids):  # world hand vertices ids -> object frame (F, K, 3)
-            posed = U.SubsetHand(hand, ids)
+        def subset_forward(
+            ids: np.ndarray,
+        ) -> Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]:
+            posed = U.SubsetHand(hand, ids)  # world hand vertices ids -> object frame (F, K, 3)
 
-            def forward(go, pose, transl):
+            def forward(go: torch.Tensor, pose: torch.Tensor, transl: torch.Tensor) -> torch.Tensor:
                 v = posed(go, pose, transl)[0]
+                # world -> object frame, R^T (v - t) with column rotations (torch, so the fit
+                # can differentiate through it; core.frames.world_to_object is numpy)
                 return torch.einsum("fji,fvj->fvi", R, v - t[:, None])
 
             return forward
 
-        f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+        f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=dev)  # noqa: E731
         res = fit_hand_to_field(
             np.broadcast_to(pts, (F, *pts.shape)),
             np.broadcast_to(nrm, (F, *nrm.shape)),
@@ -322,7 +386,7 @@ class TochMethod(U.TrainedMethod):
             dist,
             canon,
             subset_forward(np.arange(hand.num_vertices)),
-            hand.template_vertices.double().numpy(),
+            hand.template_vertices.double().cpu().numpy(),
             np.asarray(hand.faces),
             f32(p["global_orient"][frames]),
             f32(p["hand_pose"][frames]).reshape(F, 15, 3),
@@ -330,20 +394,16 @@ class TochMethod(U.TrainedMethod):
             FitConfig(n_iters=self.cfg.fit_iters, w_smooth=self.cfg.fit_smooth),
             subset_forward=subset_forward,
         )
-        return (
-            res.global_orient.double().numpy(),
-            res.hand_pose.double().numpy().reshape(F, 45),
-            res.transl.double().numpy(),
-        )
+        return res.global_orient, res.hand_pose, res.transl
 
 
 register_method(
     MethodSpec(
         name="toch",
-        description="TOCH-style refiner: denoised correspondence fields + hand fitting on interaction frames",
+        description="TOCH-style refiner: denoised correspondence fields + hand fitting on "
+        "interaction frames",
         factory=TochMethod,
         needs=("object", "noisy_hands"),
-        tables=("table3_perturbation",),
         predict_cost=6.0,  # ray casting and a hand fit per run of interaction frames
     )
 )

@@ -19,11 +19,10 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
-
-from .. import __version__
-from ..constants import CACHE_SCHEMA_VERSION
-from ..errors import InputError
+from ..core.constants import CACHE_SCHEMA_VERSION
+from ..core.errors import InputError
+from ..core.io import jsonable
+from ..core.version import __version__
 
 # Part of every key: a new release or cache layout invalidates old units instead of
 # silently reusing results computed by different code.
@@ -32,61 +31,7 @@ CODE_VERSION = f"grip-bench-{__version__}-cache{CACHE_SCHEMA_VERSION}"
 _KIND_RE = re.compile(r"^[a-z0-9_]+$")
 _KEY_RE = re.compile(r"^([a-z0-9_]+)-([0-9a-f]{64})$")
 _TMP = ".tmp"
-
-
-def _read_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _read_umask()
-
-
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temp file in the same folder and ``os.replace``.
-
-    Readers never see a half-written file; a crash leaves the old file (or none).
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; results are meant to be shared
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    return path
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """UTF-8, ``\\n`` line endings on every platform (byte-identical outputs)."""
-    return atomic_write_bytes(path, text.encode("utf-8"))
-
-
-def jsonable(obj):
-    """Map inputs to plain JSON types; arrays are represented by a digest of their bytes."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    if isinstance(obj, np.ndarray):
-        a = np.ascontiguousarray(obj)
-        digest = hashlib.sha256(a.tobytes()).hexdigest()
-        return {"__ndarray__": digest, "dtype": a.dtype.str, "shape": list(a.shape)}
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, bytes):
-        return {"__bytes__": hashlib.sha256(obj).hexdigest()}
-    return obj
+UNIT_FILE = "unit.json"  # each unit's record: kind, label, inputs, info, seconds
 
 
 def canonical_json(obj) -> str:

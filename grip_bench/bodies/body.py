@@ -26,9 +26,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from grip_bench import constants
 from grip_bench.bodies.layouts import SMPLX_INDEX, SMPLX_JOINTS, SMPLX_PARENTS
-from grip_bench.errors import InputError
+from grip_bench.core import constants
+from grip_bench.core.errors import InputError
 from grip_bench.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 __all__ = ["BodyOutput", "ProceduralBody", "NATURAL_SWIVEL"]
@@ -82,7 +82,9 @@ _SEGMENTS: tuple[tuple[str, str, float], ...] = (
     *((f"{s}_elbow", f"{s}_wrist", 0.02) for s in ("left", "right")),
 )
 
-_FOOT_JOINTS = tuple(SMPLX_INDEX[n] for n in ("left_ankle", "right_ankle", "left_foot", "right_foot"))
+_FOOT_JOINTS = tuple(
+    SMPLX_INDEX[n] for n in ("left_ankle", "right_ankle", "left_foot", "right_foot")
+)
 _SIDE_SIGN = {"left": 1.0, "right": -1.0}
 # Natural elbow direction in the collar frame for the left arm: mostly down, a little
 # back and out (the right arm mirrors x). Swivel 0 puts the elbow as close to it as the
@@ -157,7 +159,10 @@ def _check(x, name: str, tail: tuple[int, ...], batch: int | None = None,
 
 def _pose_rows(x, name: str, rows: int, batch: int, dtype: torch.dtype,
                device: torch.device | None = None) -> torch.Tensor:
-    """Axis-angle pose ``(B, rows, 3)`` or ``(B, 3 * rows)`` (``None`` = zeros) -> ``(B, rows, 3)``."""
+    """Axis-angle pose ``(B, rows, 3)`` or ``(B, 3 * rows)`` -> ``(B, rows, 3)``.
+
+    ``None`` gives zeros.
+    """
     if x is None:
         return torch.zeros(batch, rows, 3, dtype=dtype, device=device)
     t = torch.as_tensor(x)
@@ -325,7 +330,10 @@ class ProceduralBody(nn.Module):
         return torch.stack([a0, n0, torch.linalg.cross(a0, n0)], dim=-1)
 
     def arm_reach(self, side: str) -> tuple[float, float]:
-        """Shoulder-to-wrist distance range (m): full flexion (``ELBOW_MAX_FLEXION``) to straight."""
+        """Shoulder-to-wrist distance range (m): full flexion to a straight arm.
+
+        Full flexion is ``constants.ELBOW_MAX_FLEXION``.
+        """
         l1, l2 = self.arm_lengths(side)
         flex = constants.ELBOW_MAX_FLEXION
         dmin = math.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * math.cos(flex))
@@ -354,8 +362,11 @@ class ProceduralBody(nn.Module):
         transl = _check(transl, "transl", (3,), b, dtype)
         target = _check(wrist_pos, "wrist_pos", (3,), b, dtype)
         wrist_rot = _check(wrist_rot, "wrist_rot", (3, 3), b, dtype)
-        swivel = (target.new_full((b,), NATURAL_SWIVEL) if swivel is None
-                  else _check(torch.as_tensor(swivel).reshape(-1, 1), "swivel", (1,), b, dtype)[:, 0])
+        swivel = (
+            target.new_full((b,), NATURAL_SWIVEL)
+            if swivel is None
+            else _check(torch.as_tensor(swivel).reshape(-1, 1), "swivel", (1,), b, dtype)[:, 0]
+        )
         rest = self._fk(full, transl)
         collar = rest.rotations[:, SMPLX_INDEX[f"{side}_collar"]]
         shoulder = rest.joints[:, SMPLX_INDEX[f"{side}_shoulder"]]

@@ -8,7 +8,7 @@ as an argument or in ``$GRIP_BENCH_MODEL_PATH``::
     <path>/mano/MANO_{RIGHT,LEFT}.pkl              (or .npz)
 
 The official ``.pkl`` files hold chumpy arrays and scipy sparse matrices. They are read
-only with :func:`grip_bench.safe_pickle.load_pickle` (data only, nothing in the file
+only with :func:`grip_bench.core.safe_pickle.load_pickle` (data only, nothing in the file
 runs) and the plain arrays are handed to ``smplx``: MANO takes them as ``data_struct``;
 ``smplx.SMPLX`` always opens a file itself, so it gets a temporary ``.npz`` that holds
 numeric arrays only, which its ``np.load(allow_pickle=True)`` reads without unpickling.
@@ -36,8 +36,8 @@ import torch
 from torch import nn
 
 from grip_bench.bodies.layouts import SMPLX_INDEX, SMPLX_PARENTS, TIP_NAMES
-from grip_bench.errors import GripBenchError, InputError, MissingModelError
-from grip_bench.safe_pickle import load_npz, load_pickle
+from grip_bench.core.errors import GripBenchError, InputError, MissingModelError
+from grip_bench.core.safe_pickle import load_npz, load_pickle
 
 __all__ = [
     "MODEL_PATH_ENV", "MANO_TIP_IDS", "MANOHand", "SMPLXBody", "SMPLXOutput",
@@ -354,7 +354,9 @@ class SMPLXBody(nn.Module):
     @staticmethod
     def _build(smplx, data: dict[str, np.ndarray], gender: str, kwargs: dict[str, Any]):
         """``smplx.SMPLX`` from a temporary numeric-only ``.npz`` (it cannot take arrays)."""
-        with tempfile.TemporaryDirectory(prefix="grip_bench_smplx_", ignore_cleanup_errors=True) as tmp:
+        with tempfile.TemporaryDirectory(
+            prefix="grip_bench_smplx_", ignore_cleanup_errors=True
+        ) as tmp:
             path = Path(tmp) / f"SMPLX_{gender.upper()}.npz"
             np.savez(path, **data)
             with _quiet():

@@ -13,7 +13,7 @@ import math
 from collections import Counter
 from pathlib import Path
 
-from ..errors import InputError
+from ..core.errors import InputError
 
 _COMMANDS = []
 
@@ -165,8 +165,9 @@ def _parse_sigma(text: str | None, kind: str):
         return values[0]
     if kind == "arm" and len(values) == 2:
         return tuple(values)
-    raise InputError(f"expected one number{' or SHOULDER,ELBOW' if kind == 'arm' else ''}: {text!r}",
-                     "--sigma")
+    raise InputError(
+        f"expected one number{' or SHOULDER,ELBOW' if kind == 'arm' else ''}: {text!r}", "--sigma"
+    )
 
 
 def run_perturb(args: argparse.Namespace) -> int:

@@ -37,7 +37,7 @@ def _metrics_epilog() -> str:
 
 
 def register(sub) -> None:
-    from ..constants import EVAL_MAX_PHYSICS_FRAMES
+    from ..core.constants import EVAL_MAX_PHYSICS_FRAMES
 
     p = sub.add_parser("evaluate", help="score predicted sequences against the ground truth",
                        description=DESCRIPTION, epilog=_metrics_epilog(),
@@ -65,7 +65,7 @@ def register(sub) -> None:
 
 
 def _metric_list(spec: str | None) -> list[str] | None:
-    from ..errors import InputError
+    from ..core.errors import InputError
 
     if spec is None:
         return None
@@ -78,7 +78,7 @@ def _metric_list(spec: str | None) -> list[str] | None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from ..errors import InputError
+    from ..core.errors import InputError
     from ..metrics.aggregate import evaluate_dirs
     from ..metrics.evaluate import EvalOptions
 
@@ -95,9 +95,18 @@ def run(args: argparse.Namespace) -> int:
     options = EvalOptions(max_physics_frames=args.max_physics_frames,
                           max_iv_frames=args.max_iv_frames, model_path=args.model_path, up=up)
     method = args.method or args.pred.resolve().name
-    info = evaluate_dirs(args.pred, args.gt, args.out, method=method, metrics=_metric_list(args.metrics),
-                         per_frame=args.per_frame, workers=args.workers, split=args.split,
-                         options=options, progress=not args.no_progress and sys.stderr.isatty())
+    info = evaluate_dirs(
+        args.pred,
+        args.gt,
+        args.out,
+        method=method,
+        metrics=_metric_list(args.metrics),
+        per_frame=args.per_frame,
+        workers=args.workers,
+        split=args.split,
+        options=options,
+        progress=not args.no_progress and sys.stderr.isatty(),
+    )
     print(f"evaluated {info['n_sequences']} sequence(s) of {info['dataset']}/{info['split']} "
           f"in {info['wall_time_s']:.1f} s; failures: {info['failures']['count']}; "
           f"wrote {args.out / 'results.csv'}")

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.errors import InputError
 from ..data.posing import hand_poser, load_object_mesh_of
-from ..errors import InputError
 
 CHUNK = 256  # frames posed per batch (bounds memory on long sequences)
 

@@ -15,7 +15,7 @@ def register(sub) -> None:
 
 
 def _rows(kind: str) -> list[str]:
-    from .. import catalog
+    from . import catalog
 
     return catalog.describe(kind)
 

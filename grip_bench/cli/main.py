@@ -1,7 +1,8 @@
 """``grip-bench`` entry point: argument parsing, subcommand dispatch, error convention.
 
-Exit codes (DESIGN 4.2): 0 success, 1 bad input (one line ``error: <file>: <what>``),
-2 bad usage (argparse), 130 interrupted. ``--debug`` shows tracebacks.
+Exit codes (docs/contract.md, "Command line"): 0 success, 1 bad input (one line
+``error: <where>: <what>``), 2 bad usage (argparse), 130 interrupted. ``--debug`` shows
+tracebacks.
 """
 
 from __future__ import annotations
@@ -10,8 +11,8 @@ import argparse
 import importlib
 import sys
 
-from .. import __version__
-from ..errors import GripBenchError
+from ..core.errors import GripBenchError
+from ..core.version import __version__
 
 # Each module defines ``register(subparsers)`` and sets ``func`` on its parser.
 # Later issues append their subcommand modules here.
@@ -26,10 +27,10 @@ Units inside are metres, radians and seconds; reports use mm, cm^3 and %."""
 EPILOG = """\
 a typical session:
   grip-bench data synth --out data/synth --profile smoke    make SynthGRAB data (GRAB layout)
-  grip-bench train grip --data data/synth --out grip.pt     train a method (see: grip-bench ls methods)
+  grip-bench train grip --data data/synth --out grip.pt     train a method (grip-bench ls methods)
   grip-bench predict --method grip --checkpoint grip.pt --input data/synth --out pred
   grip-bench evaluate --pred pred --gt data/synth --out eval
-  grip-bench run --profile smoke                            all of the above for every method and table
+  grip-bench run --profile smoke                            the above for every method and table
   grip-bench <command> --help                               help for one command
 """
 

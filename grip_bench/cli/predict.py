@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import shutil
-import time
 from pathlib import Path
 
 DESCRIPTION = """\
@@ -24,10 +22,14 @@ significant digits; the default fp32 is what the tables use)."""
 
 
 def register(sub) -> None:
-    p = sub.add_parser("predict", help="run a trained method and write its sequences",
-                       description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="example:\n  grip-bench predict --method grip --checkpoint ckpt/grip.pt "
-                              "--input synth/ --split test --out preds/grip")
+    p = sub.add_parser(
+        "predict",
+        help="run a trained method and write its sequences",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="example:\n  grip-bench predict --method grip --checkpoint ckpt/grip.pt "
+        "--input synth/ --split test --out preds/grip",
+    )
     p.add_argument("--method", required=True, help="method name (see `grip-bench ls methods`)")
     p.add_argument("--checkpoint", type=Path, default=None, metavar="CKPT",
                    help="checkpoint written by `grip-bench train`")
@@ -48,14 +50,16 @@ def register(sub) -> None:
 
 def _inputs(path: Path, split: str) -> tuple[Path, list[Path]]:
     """(data root, sequence files) of a file or folder input."""
+    from ..core.errors import InputError
     from ..data.grab_io import data_root_of, list_sequences
     from ..data.splits import sequences_in_split
-    from ..errors import InputError
 
     if path.is_file():
         root = data_root_of(path)
         if root is None:
-            raise InputError("a single sequence must sit in a data folder (DATA/grab/s<k>/NAME.npz)", path)
+            raise InputError(
+                "a single sequence must sit in a data folder (DATA/grab/s<k>/NAME.npz)", path
+            )
         return root, [path]
     if not path.is_dir():
         raise InputError("no such file or folder", path)
@@ -73,25 +77,11 @@ def sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _copy_assets(root: Path, out: Path, seq) -> None:
-    """Copy the object mesh (and splits.json) so that OUT is a self-contained data folder."""
-    from ..data.grab_io import object_mesh_relpath, resolve_object_mesh
-
-    rel = seq.object_mesh if seq.object_mesh and not Path(seq.object_mesh).is_absolute() \
-        else object_mesh_relpath(seq.obj_name)
-    dst = out / rel
-    if not dst.exists():
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(resolve_object_mesh(seq, root), dst)
-    if (root / "splits.json").is_file() and not (out / "splits.json").exists():
-        shutil.copy2(root / "splits.json", out / "splits.json")
-
-
 def run(args) -> int:
-    from ..bench.methods import PredictContext, load_all
-    from ..data.grab_io import read_grab, write_grab
+    from ..bench.stages.predict import predict_files
+    from ..core.errors import InputError
     from ..data.library import ObjectLibrary
-    from ..errors import InputError
+    from ..methods.api import PredictContext, load_all
 
     spec = load_all().get(args.method)
     if args.checkpoint is not None and not args.checkpoint.is_file():
@@ -103,33 +93,35 @@ def run(args) -> int:
     method.load(args.checkpoint, args.device)
     ctx = PredictContext(library=ObjectLibrary(root), device=args.device, seed=args.seed,
                          future_frames=args.future_frames, online=args.online,
-                         extra={"no_anet": args.no_anet, "refine": args.refine,
-                                "precision": args.precision})
+                         refine=args.refine, use_anet=not args.no_anet,
+                         precision=args.precision, data_dir=root, split=args.split)
     seconds = {}
-    for path in files:
-        seq = read_grab(path)
-        t0 = time.perf_counter()
-        pred = method.predict(seq, ctx)
-        seconds[seq.name] = {"seconds": time.perf_counter() - t0, "frames": seq.n_frames}
-        write_grab(pred, args.out / path.relative_to(root))
-        _copy_assets(root, args.out, seq)
+
+    def done(seq, secs: float) -> None:
+        seconds[seq.name] = {"seconds": secs, "frames": seq.n_frames}
+
+    # the runner's prediction stage does the same (one torch thread, meshes and splits)
+    predict_files(method, files, root, args.out, ctx, progress=False, on_done=done)
     _write_manifest(args, root, seconds)
     total = sum(s["seconds"] for s in seconds.values())
     frames = sum(s["frames"] for s in seconds.values())
-    print(f"wrote {len(files)} sequences to {args.out} ({total:.1f} s, {1000 * total / max(frames, 1):.1f} ms/frame)")
+    print(f"wrote {len(files)} sequences to {args.out} ({total:.1f} s, "
+          f"{1000 * total / max(frames, 1):.1f} ms/frame)")
     return 0
 
 
 def _write_manifest(args, root: Path, seconds: dict) -> None:
-    from .. import __version__
+    from ..core.io import atomic_write_text
+    from ..core.version import __version__
 
     manifest = {
         "generator": "grip-bench predict", "suite_version": __version__, "method": args.method,
         "checkpoint": str(args.checkpoint) if args.checkpoint else None,
         "checkpoint_sha256": sha256(args.checkpoint) if args.checkpoint else None,
         "input": str(root.resolve()),
-        "options": {"future_frames": args.future_frames, "no_anet": args.no_anet, "online": args.online,
-                    "refine": args.refine, "precision": args.precision, "split": args.split, "seed": args.seed, "device": args.device},
+        "options": {"future_frames": args.future_frames, "no_anet": args.no_anet,
+                    "online": args.online, "refine": args.refine, "precision": args.precision,
+                    "split": args.split, "seed": args.seed, "device": args.device},
         "sequences": seconds,
     }
-    (args.out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
+    atomic_write_text(args.out / "manifest.json", json.dumps(manifest, indent=2) + "\n")

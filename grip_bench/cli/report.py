@@ -17,8 +17,8 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..bench.runner import write_report
-    from ..errors import InputError
+    from ..core.errors import InputError
+    from ..report.write import write_report
 
     if not (args.out / "results.csv").is_file():
         raise InputError("no results.csv here (is it the OUT folder of `grip-bench run`?)",

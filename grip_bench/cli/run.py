@@ -49,13 +49,14 @@ def _interrupt(signum, frame):
 
 def run(args: argparse.Namespace) -> int:
     from ..bench import runner
-    from ..errors import InputError
+    from ..bench.plan import make_config
+    from ..core.errors import InputError
 
     if args.workers is not None and args.workers < 1:
         raise InputError("must be >= 1", where="--workers")
-    cfg = runner.make_config(args.profile, data=args.data, out=args.out, methods=args.methods,
-                             tables=args.tables, device=args.device, workers=args.workers,
-                             model_path=args.model_path, progress=not args.quiet)
+    cfg = make_config(args.profile, data=args.data, out=args.out, methods=args.methods,
+                      tables=args.tables, device=args.device, workers=args.workers,
+                      model_path=args.model_path, progress=not args.quiet)
     if args.dry_run:
         st = runner.start(cfg)
         print("\n".join(st.plan.lines()))

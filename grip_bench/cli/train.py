@@ -14,12 +14,20 @@ training resumes from <out>.partial when re-run with the same arguments."""
 
 
 def register(sub) -> None:
-    p = sub.add_parser("train", help="train a method and write its checkpoint",
-                       description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="example:\n  grip-bench train grip --data synth/ --out ckpt/grip.pt --profile smoke")
+    p = sub.add_parser(
+        "train",
+        help="train a method and write its checkpoint",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="example:\n  grip-bench train grip --data synth/ --out ckpt/grip.pt --profile smoke",
+    )
     p.add_argument("method", help="method name (see `grip-bench ls methods`)")
-    p.add_argument("--data", type=Path, required=True, metavar="DIR", help="GRAB-layout data folder")
-    p.add_argument("--out", type=Path, required=True, metavar="CKPT", help="checkpoint file to write")
+    p.add_argument(
+        "--data", type=Path, required=True, metavar="DIR", help="GRAB-layout data folder"
+    )
+    p.add_argument(
+        "--out", type=Path, required=True, metavar="CKPT", help="checkpoint file to write"
+    )
     p.add_argument("--profile", default="default", help="smoke, default, paper or a .toml file")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"), help="device (default cpu)")
@@ -28,18 +36,21 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..bench.methods import load_all
-    from ..errors import InputError
+    from ..bench.stages.train import train_checkpoint
+    from ..core.errors import InputError
+    from ..methods.api import TrainContext, load_all
     from ..profiles import load_profile
 
-    spec = load_all().get(args.method)
+    load_all().get(args.method)  # InputError listing the known methods
     profile = load_profile(args.profile)
     if not (args.data / "grab").is_dir():
         raise InputError("not a GRAB-layout data folder (no grab/ inside)", args.data)
     if args.out.is_dir():
         raise InputError("is a folder; --out names the checkpoint file to write", args.out)
     t0 = time.perf_counter()
-    out = spec.build().train(args.data, args.out, profile=profile, seed=args.seed,
-                             device=args.device, progress=not args.no_progress)
+    # the runner's training stage calls the same function: same seed, same bytes
+    ctx = TrainContext(profile=profile, seed=args.seed, device=args.device,
+                       progress=not args.no_progress)
+    out = train_checkpoint(args.method, args.data, args.out, ctx)
     print(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
     return 0

@@ -1,4 +1,4 @@
-"""Read and write GRAB-layout ``.npz`` sequences (DESIGN 4.1), safely.
+"""Read and write GRAB-layout ``.npz`` sequences (docs/contract.md, "Data on disk"), safely.
 
 On-disk layout written by :func:`write_grab` (every dict is a 0-d object array, read
 back with ``.item()`` exactly like GRAB's files)::
@@ -18,7 +18,7 @@ back with ``.item()`` exactly like GRAB's files)::
     contact = {'object': (T, N_obj_verts) int, ['body': (T, N_body_verts) int]}
 
 Mesh paths are relative to the data root (the folder holding ``grab/`` and ``tools/``),
-as in GRAB. Reading never executes pickled code (:func:`grip_bench.safe_pickle.load_npz`).
+as in GRAB. Reading never executes pickled code (:func:`grip_bench.core.safe_pickle.load_npz`).
 
 Real GRAB files differ from what we write in three ways that :func:`read_grab` handles:
 - ``framerate`` 120: subsampled to the working 30 fps by keeping every 4th frame
@@ -42,18 +42,17 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-import tempfile
 import zipfile
 from collections.abc import Iterable
-from contextlib import suppress
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from .. import constants as C
-from ..errors import InputError, MissingModelError
-from ..safe_pickle import load_npz
+from ..core import constants as C
+from ..core.errors import InputError, MissingModelError
+from ..core.io import atomic_file
+from ..core.safe_pickle import load_npz
 from .sequence import PART_DIMS, Sequence, hand_fullpose
 
 REQUIRED_KEYS = ("gender", "sbj_id", "obj_name", "motion_intent", "framerate", "n_frames",
@@ -194,18 +193,8 @@ def write_grab(seq: Sequence, path: str | os.PathLike) -> Path:
     path = Path(path)
     seq.validate(source=path)
     arrays = _to_arrays(seq)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    with atomic_file(path) as f:
+        np.savez_compressed(f, **arrays)
     return path
 
 
@@ -269,7 +258,9 @@ def _parse_header(raw: dict[str, Any], path: Path) -> dict[str, Any]:
     hdr["n_frames"] = _as_number(raw["n_frames"], w("n_frames"), integer=True)
     hdr["n_comps"] = _as_number(raw["n_comps"], w("n_comps"), integer=True)
     # Real GRAB files have no body_model key: they are SMPL-X fits.
-    hdr["body_model"] = _as_str(raw["body_model"], w("body_model")) if "body_model" in raw else "smplx"
+    hdr["body_model"] = (
+        _as_str(raw["body_model"], w("body_model")) if "body_model" in raw else "smplx"
+    )
     if hdr["n_frames"] < 1:
         raise InputError(f"should be >= 1, got {hdr['n_frames']}", w("n_frames"))
     if not 1 <= hdr["n_comps"] <= C.N_HAND_POSE:
@@ -360,7 +351,9 @@ def _contact(raw: dict[str, Any], n_frames: int, path: Path) -> dict[str, np.nda
     for key, labels in entry.items():
         where = f"{path}: contact.{key}"
         if not isinstance(labels, np.ndarray) or labels.ndim != 2 or labels.shape[0] != n_frames:
-            raise InputError(f"shape {np.shape(labels)} should be (n_frames={n_frames}, N_verts)", where)
+            raise InputError(
+                f"shape {np.shape(labels)} should be (n_frames={n_frames}, N_verts)", where
+            )
         if labels.dtype.kind == "f":  # some exports store labels as floats: accept whole numbers
             if not (np.isfinite(labels).all() and (labels == np.round(labels)).all()):
                 raise InputError("contact labels should be whole numbers", where)

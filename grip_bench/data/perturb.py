@@ -39,10 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from .. import constants as C
 from ..bodies.layouts import SMPLX_INDEX
-from ..errors import InputError
+from ..core import constants as C
+from ..core.errors import InputError
+from ..core.version import __version__
 from .grab_io import (
     ManoBackend,
     dataset_hash,
@@ -59,7 +59,10 @@ KINDS = ("T", "R", "arm")
 PROTOCOL = {"T": "GRAB-T", "R": "GRAB-R", "arm": "ANet-arm"}
 DEFAULT_SIGMA = {"T": C.TOCH_T_SIGMAS[0], "R": C.TOCH_R_SIGMAS[0],
                  "arm": (C.ANET_SHOULDER_SIGMA, C.ANET_ELBOW_SIGMA)}
-ARM_JOINTS = {"shoulder": ("left_shoulder", "right_shoulder"), "elbow": ("left_elbow", "right_elbow")}
+ARM_JOINTS = {
+    "shoulder": ("left_shoulder", "right_shoulder"),
+    "elbow": ("left_elbow", "right_elbow"),
+}
 # SMPL-X fullpose column of the left / right hand's 45 finger values.
 _BODY_FULLPOSE_HAND = {"left": 25 * 3, "right": 40 * 3}
 
@@ -137,7 +140,9 @@ def _perturb_arm(seq: Sequence, sigmas: tuple[float, float], rng) -> dict:
     for i, name in enumerate(joints):
         j = SMPLX_INDEX[name]  # body_pose covers joints 1..21
         n = noise[:, 3 * i:3 * i + 3]
-        body_pose[:, 3 * (j - 1):3 * j] = (body_pose[:, 3 * (j - 1):3 * j] + n).astype(body_pose.dtype)
+        body_pose[:, 3 * (j - 1) : 3 * j] = (body_pose[:, 3 * (j - 1) : 3 * j] + n).astype(
+            body_pose.dtype
+        )
         full[:, 3 * j:3 * j + 3] = (full[:, 3 * j:3 * j + 3] + n).astype(full.dtype)
     return {"body": {**seq.body, "body_pose": body_pose, "fullpose": full}}
 
@@ -151,7 +156,9 @@ def perturb_sequence(seq: Sequence, kind: str, sigma=None,
     ``np.random.Generator`` or an int seed (required: noise is never unseeded).
     """
     if rng is None:
-        raise InputError("a seed or np.random.Generator is required (noise is always seeded)", "rng")
+        raise InputError(
+            "a seed or np.random.Generator is required (noise is always seeded)", "rng"
+        )
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     sig = resolve_sigma(kind, sigma)
     change = {"T": _perturb_translation, "R": _perturb_hand_pose, "arm": _perturb_arm}[kind]
@@ -183,7 +190,11 @@ def _copy(src: Path, dst: Path) -> None:
 
 def _select(in_dir: Path, split: str | None) -> tuple[list[Path], dict]:
     splits = read_splits(in_dir, default="grip")
-    files = list_sequences(in_dir) if split in (None, "all") else sequences_in_split(in_dir, split, splits)
+    files = (
+        list_sequences(in_dir)
+        if split in (None, "all")
+        else sequences_in_split(in_dir, split, splits)
+    )
     if not files:
         raise InputError(f"no sequences in split {split!r}", in_dir)
     return files, splits

@@ -1,4 +1,6 @@
-"""Posing a sequence's hands and loading its object: shared by export, evaluate, sensors and methods.
+"""Posing a sequence's hands and loading its object.
+
+Shared by export, evaluate, sensors and methods.
 
 ``hand_poser(seq, model_path)`` picks the backend the file names (``body_model``):
 the procedural hand (always available) or MANO through the smplx backend.
@@ -12,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, MissingModelError
+from ..core.errors import InputError, MissingModelError
 
 
 def load_object_mesh_of(seq) -> tuple[np.ndarray, np.ndarray]:
@@ -84,7 +86,9 @@ class MANOPoser:
         import torch
 
         with torch.no_grad():
-            verts, joints = self.hands[side](p["global_orient"][sl], p["hand_pose"][sl], p["transl"][sl])
+            verts, joints = self.hands[side](
+                p["global_orient"][sl], p["hand_pose"][sl], p["transl"][sl]
+            )
         return verts.cpu().numpy().astype(float), joints.cpu().numpy().astype(float)
 
     def vertices(self, side: str, p: dict, sl: slice = slice(None)) -> np.ndarray:

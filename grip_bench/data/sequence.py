@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .. import constants as C
 from ..bodies.layouts import SMPLX_INDEX, SMPLX_JOINTS
-from ..errors import InputError
+from ..core import constants as C
+from ..core.errors import InputError
 
 # Width of every (T, k) parameter array, per part, in GRAB's key names.
 BODY_DIMS = {
@@ -95,7 +95,10 @@ def make_body_params(global_orient, body_pose, transl, left_hand_pose, right_han
 
 
 def make_hand_params(global_orient, hand_pose, transl) -> dict[str, np.ndarray]:
-    """Hand params dict ``{global_orient (T,3), hand_pose (T,45), transl (T,3), fullpose (T,48)}``."""
+    """Hand params dict of one hand.
+
+    ``{global_orient (T,3), hand_pose (T,45), transl (T,3), fullpose (T,48)}``.
+    """
     go, hp, tr = (np.asarray(a) for a in (global_orient, hand_pose, transl))
     hp = hp.reshape(hp.shape[0], -1)
     return {"global_orient": go, "hand_pose": hp, "transl": tr, "fullpose": hand_fullpose(go, hp)}
@@ -159,7 +162,10 @@ class Sequence:
                 "object": self.object, "table": self.table}
 
     def hand_params(self, side: str) -> dict[str, np.ndarray]:
-        """Params of one hand (``"right"`` or ``"left"``): global_orient, hand_pose (T,45), transl, fullpose."""
+        """Params of one hand (``"right"`` or ``"left"``).
+
+        Keys: global_orient, hand_pose (T,45), transl, fullpose.
+        """
         if side not in SIDES:
             raise InputError(f"side must be 'right' or 'left', got {side!r}", "side")
         return self.rhand if side == "right" else self.lhand
@@ -234,7 +240,9 @@ class Sequence:
             part = out.rhand if side == "right" else out.lhand
             merged = {k: np.asarray(new.get(k, part[k]), dtype=part[k].dtype)
                       for k in ("global_orient", "hand_pose", "transl")}
-            part.update(make_hand_params(merged["global_orient"], merged["hand_pose"], merged["transl"]))
+            part.update(
+                make_hand_params(merged["global_orient"], merged["hand_pose"], merged["transl"])
+            )
             out.body[f"{side}_hand_pose"] = part["hand_pose"].astype(out.body["body_pose"].dtype)
         out.body["fullpose"] = body_fullpose(out.body)
         return out
@@ -266,20 +274,28 @@ class Sequence:
         for key in ("name", "sbj_id", "obj_name", "motion_intent"):
             value = getattr(self, key)
             if not isinstance(value, str) or not value:
-                raise InputError(f"should be a non-empty string, got {value!r}", _where(source, key))
+                raise InputError(
+                    f"should be a non-empty string, got {value!r}", _where(source, key)
+                )
         if "/" in self.obj_name or "\\" in self.obj_name:
             raise InputError(f"object name {self.obj_name!r} must not contain path separators",
                              _where(source, "obj_name"))
         if self.gender not in GENDERS:
-            raise InputError(f"gender {self.gender!r} should be one of {GENDERS}", _where(source, "gender"))
+            raise InputError(
+                f"gender {self.gender!r} should be one of {GENDERS}", _where(source, "gender")
+            )
         if self.body_model not in BODY_MODELS:
             raise InputError(f"body model {self.body_model!r} should be one of {BODY_MODELS}",
                              _where(source, "body_model"))
         if not (isinstance(self.fps, int | float) and np.isfinite(self.fps) and self.fps == C.FPS):
-            raise InputError(f"frame rate {self.fps!r} should be {C.FPS:g} fps (the suite's working "
-                             f"rate; read_grab subsamples GRAB's {C.GRAB_FPS:g} fps)",
-                             _where(source, "framerate"))
-        _check_optional_range(self.height, C.SUBJECT_HEIGHT_RANGE, "m", _where(source, "body.height"))
+            raise InputError(
+                f"frame rate {self.fps!r} should be {C.FPS:g} fps (the suite's working "
+                f"rate; read_grab subsamples GRAB's {C.GRAB_FPS:g} fps)",
+                _where(source, "framerate"),
+            )
+        _check_optional_range(
+            self.height, C.SUBJECT_HEIGHT_RANGE, "m", _where(source, "body.height")
+        )
         _check_optional_range(self.hand_scale, C.HAND_SCALE_RANGE, "",
                               _where(source, "body.hand_scale"))
 
@@ -336,8 +352,11 @@ def _check_units(a: np.ndarray, key: str, where: str) -> None:
     elif key in ROTATION_KEYS:
         peak = float(np.linalg.norm(a.reshape(a.shape[0], -1, 3), axis=-1).max())
         if peak > C.MAX_AXIS_ANGLE:
-            raise InputError(f"rotation angle up to {peak:.4g} rad (> {C.MAX_AXIS_ANGLE:g}): "
-                             "are the angles in degrees? the suite expects axis-angle radians", where)
+            raise InputError(
+                f"rotation angle up to {peak:.4g} rad (> {C.MAX_AXIS_ANGLE:g}): "
+                "are the angles in degrees? the suite expects axis-angle radians",
+                where,
+            )
 
 
 def _check_optional_range(value, bounds, unit: str, where: str) -> None:
@@ -345,5 +364,8 @@ def _check_optional_range(value, bounds, unit: str, where: str) -> None:
         return
     lo, hi = bounds
     if not isinstance(value, int | float) or not np.isfinite(value) or not lo <= value <= hi:
-        raise InputError(f"{value!r} is outside the plausible range [{lo:g}, {hi:g}]{' ' + unit if unit else ''}",
-                         where)
+        raise InputError(
+            f"{value!r} is outside the plausible range "
+            f"[{lo:g}, {hi:g}]{' ' + unit if unit else ''}",
+            where,
+        )

@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
-from contextlib import suppress
 from pathlib import Path
 
-from ..errors import InputError
+from ..core.errors import InputError
+from ..core.io import atomic_file
 from .grab_io import list_sequences, read_grab_header
 
 SPLIT_NAMES = ("train", "val", "test")
@@ -85,7 +84,9 @@ def read_splits(data_dir: str | os.PathLike, *, default: str | None = None) -> d
             raise InputError("no splits.json (expected {\"train\": [...], \"val\": [...], "
                              "\"test\": [...]})", path)
         if default not in SCHEMES:
-            raise InputError(f"unknown split scheme {default!r} (known: {sorted(SCHEMES)})", "default")
+            raise InputError(
+                f"unknown split scheme {default!r} (known: {sorted(SCHEMES)})", "default"
+            )
         return validate_splits(SCHEMES[default])
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -98,17 +99,9 @@ def write_splits(data_dir: str | os.PathLike, splits: dict[str, list[str]]) -> P
     """Validate and write ``DATA/splits.json`` atomically; return its path."""
     clean = validate_splits(splits)
     path = Path(data_dir) / SPLITS_FILE
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".splits.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(clean, f, indent=2)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        with suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    with atomic_file(path, "w") as f:
+        json.dump(clean, f, indent=2)
+        f.write("\n")
     return path
 
 

@@ -26,12 +26,13 @@ import functools
 import hashlib
 import json
 import os
-import tempfile
 import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
+
+from ..core.io import atomic_file
 
 __all__ = ["CACHE_VERSION", "ENV_VAR", "cache_root", "mesh_key", "load_arrays", "save_arrays",
            "cached_arrays", "package_version"]
@@ -50,7 +51,10 @@ def _warn_once(what: str, msg: str) -> None:
 
 @functools.cache
 def package_version(dist: str) -> str:
-    """Installed version of a distribution (part of keys whose builder is a library), "?" if unknown."""
+    """Installed version of a distribution, "?" if unknown.
+
+    Part of the keys of entries whose builder is a library.
+    """
     from importlib.metadata import PackageNotFoundError, version
 
     try:
@@ -122,22 +126,11 @@ def save_arrays(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> None:
     if root is None:
         return
     path = _path(root, kind, key)
-    tmp = None
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
+        with atomic_file(path) as f:
             np.savez(f, **{k: np.asarray(a) for k, a in arrays.items()})
-        os.replace(tmp, path)
-        tmp = None
     except OSError as e:
         _warn_once("write", f"grip-bench geometry cache: cannot write {path} ({e}); not caching")
-    finally:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
 
 
 def cached_arrays(kind: str, key: str, build: Callable[[], Mapping[str, np.ndarray]],

@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 import trimesh
 
-from grip_bench import constants
+from grip_bench.core import constants
 
 __all__ = ["DistanceField", "grid_signed_distance_many"]
 
@@ -100,7 +100,8 @@ class DistanceField:
     # --- exact path -------------------------------------------------------------
 
     def _exact(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Exact signed distance ``(N,)``, closest points ``(N, 3)``, faces ``(N,)``, pseudonormals ``(N, 3)``."""
+        """Exact signed distance ``(N,)``, closest points ``(N, 3)``, faces ``(N,)``,
+        pseudonormals ``(N, 3)``."""
         if len(p) == 0:
             return np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3))
         sqd, face, closest = self._tree.squared_distance(self._V, self._F, p)
@@ -158,7 +159,7 @@ class DistanceField:
         return back(self._exact_values(p).reshape(lead))
 
     def closest_points(self, points):
-        """Closest surface points ``(..., 3)``, signed distances ``(...)`` (m) and face ids ``(...)``.
+        """Closest surface points ``(..., 3)``, signed distances ``(...)`` (m), face ids ``(...)``.
 
         Shapes follow the input: ``(N, 3)`` points give ``(N, 3), (N,), (N,)``.
         Face ids are int64 (numpy or torch).
@@ -254,7 +255,10 @@ class DistanceField:
                 "unreliable": unreliable}
 
     def _coarse_fill(self, nodes: np.ndarray, band: float) -> np.ndarray:
-        """Values for nodes beyond the exact band: trilinear from an exact coarse grid, |d| >= band."""
+        """Values for nodes beyond the exact band (|d| >= band).
+
+        Trilinear from an exact coarse grid.
+        """
         factor = constants.SDF_COARSE_FACTOR
         H = self.spacing * factor
         shape_c = tuple(int(np.ceil((s - 1) / factor)) + 1 for s in self.shape)
@@ -276,7 +280,8 @@ class DistanceField:
         from the surface and keep their (approximate) grid values.
         """
         limit = 4.0 * constants.SDF_KINK_TOL / self.spacing
-        views = [grad[i : i + grad.shape[0] - 1, j : j + grad.shape[1] - 1, k : k + grad.shape[2] - 1]
+        views = [grad[i : i + grad.shape[0] - 1, j : j + grad.shape[1] - 1,
+                      k : k + grad.shape[2] - 1]
                  for i, j, k in _CORNERS]  # fmt: skip
         gmax, gmin = views[0].copy(), views[0].copy()
         all_near = near[:-1, :-1, :-1].copy()
@@ -306,7 +311,7 @@ class DistanceField:
         self._cell_scale = torch.tensor((n - 1) / (n - 2), dtype=torch.float32)
 
     def _grid(self, p: np.ndarray, vol: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-        """Interpolated channels ``(N, C)`` and the exact-path mask ``(N,)`` for points ``(N, 3)``."""
+        """Interpolated channels ``(N, C)`` and exact-path mask ``(N,)`` of points ``(N, 3)``."""
         u = torch.from_numpy(p).to(torch.float32).mul_(self._scale).add_(self._shift)
         vals = F.grid_sample(vol, u.view(1, 1, 1, -1, 3), align_corners=True)
         # nearest cell centre = the cell holding the point; outside the grid reads 0
@@ -323,7 +328,9 @@ class DistanceField:
         return _read(self._vol, self._scale, self._shift, q)
 
     def signed_distance(self, points, far: str = "exact", exact_cells: bool = True):
-        """Signed distance ``(...)`` (m, negative inside) of points ``(..., 3)``, grid + exact fallback.
+        """Signed distance ``(...)`` (m, negative inside) of points ``(..., 3)``.
+
+        Grid values, with an exact fallback.
 
         Points beyond the fine grid (more than ``padding`` from the object) are answered by
         ``far``: ``"exact"`` (libigl, ~1 us a point); ``"bound"``, their distance to the
@@ -368,7 +375,9 @@ class DistanceField:
             inside = np.ones(len(q), bool)
             inside[rest] = False
             near = q[inside]
-            out[inside] = self._near_first(near, "exact") if exact_cells else self.interpolated(near)
+            out[inside] = (
+                self._near_first(near, "exact") if exact_cells else self.interpolated(near)
+            )
         for tier in self._far_tiers():
             if not len(rest):
                 break
@@ -408,7 +417,7 @@ class DistanceField:
         return _outside_box(q, self.origin, self.origin + self.spacing * (np.array(self.shape) - 1))
 
     def _box_distance(self, q: np.ndarray) -> np.ndarray:
-        """Distance ``(N,)`` from points to the mesh's bounding box (a lower bound of the SDF outside).
+        """Distance ``(N,)`` from points to the mesh's bounding box (an SDF lower bound outside).
 
         ``norm(max(lo - q, q - hi, 0), axis=1)`` computed column by column, summing the squares
         in the same order (x, y, z): the same values, 8x faster.
@@ -494,7 +503,7 @@ def _read(vol: torch.Tensor, scale: torch.Tensor, shift: torch.Tensor, q: np.nda
 def _trilinear(
     values: np.ndarray, base: np.ndarray, frac: np.ndarray, offsets: np.ndarray
 ) -> np.ndarray:
-    """Trilinear interpolation of flat node ``values`` at cells ``base (N,)`` with ``frac (N, 3)``."""
+    """Trilinear interpolation of flat node ``values`` at cells ``base (N,)``, ``frac (N, 3)``."""
     v = values[base[:, None] + offsets].astype(np.float64)  # (N, 8), corners in (i, j, k) order
     fx, fy, fz = frac[:, 0:1], frac[:, 1:2], frac[:, 2:3]
     v = v[:, :4] + fx * (v[:, 4:] - v[:, :4])  # along i
@@ -542,7 +551,9 @@ class _FarGrid:
         return _read(self._vol, self._scale, self._shift, p), _outside_box(p, self.origin, self._hi)
 
 
-def grid_signed_distance_many(fields: list, which: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+def grid_signed_distance_many(
+    fields: list, which: torch.Tensor, points: torch.Tensor
+) -> torch.Tensor:
     """:meth:`DistanceField.grid_signed_distance` of samples on several objects.
 
     fields: the objects' fields; which (B,) int: each sample's field; points (B, ..., 3) in
@@ -551,6 +562,8 @@ def grid_signed_distance_many(fields: list, which: torch.Tensor, points: torch.T
     """
     order = torch.argsort(which, stable=True)
     ids, counts = torch.unique_consecutive(which[order], return_counts=True)
-    parts = [fields[k].grid_signed_distance(x)
-             for k, x in zip(ids.tolist(), torch.split(points[order], counts.tolist()), strict=True)]
+    parts = [
+        fields[k].grid_signed_distance(x)
+        for k, x in zip(ids.tolist(), torch.split(points[order], counts.tolist()), strict=True)
+    ]
     return torch.cat(parts)[torch.argsort(order)]

@@ -16,8 +16,8 @@ import manifold3d
 import numpy as np
 import trimesh
 
-from grip_bench import constants
-from grip_bench.errors import InputError
+from grip_bench.core import constants
+from grip_bench.core.errors import InputError
 
 __all__ = ["ObjectAsset", "load_object_mesh", "to_manifold", "from_manifold", "repair_mesh"]
 
@@ -61,7 +61,8 @@ def _read(path: Path) -> trimesh.Trimesh:
         raise InputError("mesh file is empty (0 bytes)", where=path)
     if path.suffix.lower() not in SUPPORTED_SUFFIXES:
         raise InputError(
-            f"unsupported mesh format {path.suffix!r} (expected one of {', '.join(SUPPORTED_SUFFIXES)})",
+            f"unsupported mesh format {path.suffix!r} "
+            f"(expected one of {', '.join(SUPPORTED_SUFFIXES)})",
             where=path,
         )
     try:
@@ -105,12 +106,14 @@ def _check_extent(mesh: trimesh.Trimesh, where) -> None:
     extent = float(np.ptp(mesh.vertices, axis=0).max())
     if extent > constants.MAX_OBJECT_EXTENT:
         raise InputError(
-            f"object extent {extent:.4g} m is over {constants.MAX_OBJECT_EXTENT} m ({_unit_hint(extent)})",
+            f"object extent {extent:.4g} m is over {constants.MAX_OBJECT_EXTENT} m "
+            f"({_unit_hint(extent)})",
             where=where,
         )
     if extent < constants.MIN_OBJECT_EXTENT:
         raise InputError(
-            f"object extent {extent:.4g} m is under {constants.MIN_OBJECT_EXTENT * 1e3:g} mm ({_unit_hint(extent)})",
+            f"object extent {extent:.4g} m is under {constants.MIN_OBJECT_EXTENT * 1e3:g} mm "
+            f"({_unit_hint(extent)})",
             where=where,
         )
 

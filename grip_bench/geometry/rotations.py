@@ -16,7 +16,7 @@ import functools
 import numpy as np
 import torch
 
-from grip_bench import constants
+from grip_bench.core import constants
 
 __all__ = [
     "axis_angle_to_matrix",
@@ -98,7 +98,10 @@ def axis_angle_to_matrix(axis_angle: torch.Tensor) -> torch.Tensor:
 
 @_numpy_io
 def axis_angle_to_quaternion(axis_angle: torch.Tensor) -> torch.Tensor:
-    """Axis-angle ``(..., 3)`` (radians) -> unit quaternion ``(..., 4)`` (w, x, y, z), w >= 0 for t <= pi."""
+    """Axis-angle ``(..., 3)`` (radians) -> unit quaternion ``(..., 4)`` (w, x, y, z).
+
+    w >= 0 for angles t <= pi.
+    """
     _check_last(axis_angle, (3,), "axis_angle")
     t2 = (axis_angle * axis_angle).sum(-1)
     small, t = _split_angle(t2)
@@ -109,9 +112,9 @@ def axis_angle_to_quaternion(axis_angle: torch.Tensor) -> torch.Tensor:
 
 @_numpy_io
 def quaternion_to_axis_angle(quaternion: torch.Tensor) -> torch.Tensor:
-    """Quaternion ``(..., 4)`` (w, x, y, z; any norm > 0) -> axis-angle ``(..., 3)`` with angle in [0, pi].
+    """Quaternion ``(..., 4)`` (w, x, y, z; any norm > 0) -> axis-angle ``(..., 3)``.
 
-    The angle comes from ``atan2(|xyz|, w)``, accurate at both ends of the range.
+    The angle is in [0, pi]; it comes from ``atan2(|xyz|, w)``, accurate at both ends of the range.
     """
     _check_last(quaternion, (4,), "quaternion")
     q = standardize_quaternion(quaternion / quaternion.norm(dim=-1, keepdim=True))

@@ -15,15 +15,14 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from grip_bench.constants import (
+from grip_bench.core.constants import (
     ANET_NOISY_FUTURE,
     GRIP_DROPOUT,
     GRIP_LATENT,
     N_ARM_JOINTS,
     ROT6D_DIM,
 )
-from grip_bench.errors import InputError
-from grip_bench.grip.blocks import check_config, check_shape
+from grip_bench.core.errors import InputError
 from grip_bench.grip.ltc import (
     Latents,
     check_mode,
@@ -32,6 +31,7 @@ from grip_bench.grip.ltc import (
     n_frames_out,
     split_codes,
 )
+from grip_bench.nn.blocks import check_config, check_shape
 
 
 @dataclass

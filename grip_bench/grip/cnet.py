@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from grip_bench.constants import (
+from grip_bench.core.constants import (
     AMBIENT_N_POINTS,
     CNET_BODY_DIM,
     FUTURE_FRAMES,
@@ -25,8 +25,7 @@ from grip_bench.constants import (
     PROXIMITY_N_VERTS,
     ROT6D_DIM,
 )
-from grip_bench.errors import InputError
-from grip_bench.grip.blocks import check_config, check_shape
+from grip_bench.core.errors import InputError
 from grip_bench.grip.ltc import (
     Latents,
     check_mode,
@@ -35,6 +34,7 @@ from grip_bench.grip.ltc import (
     n_frames_out,
     split_codes,
 )
+from grip_bench.nn.blocks import check_config, check_shape
 
 N_HANDS = 2  # left, right (index 0 = left, 1 = right throughout GRIP's networks)
 
@@ -134,7 +134,8 @@ class CNet(nn.Module):
         return split_codes(codes, self.cfg.latent, self.cfg.consistency)
 
     def decode(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Shared decoder: latents ``(..., L)`` -> poses ``(..., 2, J, 6)``, proximity ``(..., 2, P)``.
+        """Shared decoder: latents ``(..., L)`` -> poses ``(..., 2, J, 6)``, proximity
+        ``(..., 2, P)``.
 
         Inference decodes only the latents it keeps (offline: z_t of every pair)."""
         c = self.cfg

@@ -22,20 +22,19 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import os
-import tempfile
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from .. import constants as C
 from ..bodies.layouts import SMPLX_INDEX
-from ..errors import InputError
+from ..core import constants as C
+from ..core.errors import InputError
+from ..core.io import atomic_file
+from ..core.threads import single_thread
 from ..geometry.rotations import axis_angle_to_matrix, matrix_to_rotation_6d
 from ..sensors import NET_SIDES, ambient_sensor, stage_one, wrist_frames
-from ..threads import single_thread
 
 FEATURE_VERSION = 1  # bump when any per-frame array changes meaning
 ARM_JOINTS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow")
@@ -60,7 +59,10 @@ class HandModel(torch.nn.Module):
         self.proximity_ids = self.hands[0].proximity_ids  # identical for both sides (mirror)
 
     def _fk(self, hand, rot: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Global joint rotations (N, 16, 3, 3) and positions (N, 16, 3) from local rot (N, 15, 3, 3)."""
+        """Global joint rotations (N, 16, 3, 3) and positions (N, 16, 3).
+
+        From local rotations ``rot`` (N, 15, 3, 3).
+        """
         rest = hand.rest_joints.to(rot)
         eye = torch.eye(3, dtype=rot.dtype, device=rot.device).expand(rot.shape[0], 3, 3)
         g_rot, g_pos = [eye], [rest[0].expand(rot.shape[0], 3)]
@@ -105,7 +107,9 @@ def hand_proximity_points(poses_6d: np.ndarray, rot: np.ndarray, transl: np.ndar
 # --- per-sequence features ----------------------------------------------------------------
 def aa_to_6d(aa: np.ndarray) -> np.ndarray:
     """Axis-angle ``(..., 3)`` -> 6D ``(..., 6)`` float32."""
-    return matrix_to_rotation_6d(axis_angle_to_matrix(np.asarray(aa, np.float64))).astype(np.float32)
+    return matrix_to_rotation_6d(axis_angle_to_matrix(np.asarray(aa, np.float64))).astype(
+        np.float32
+    )
 
 
 def arms_6d(body_pose: np.ndarray) -> np.ndarray:
@@ -146,7 +150,10 @@ def gt_poses_6d(seq) -> np.ndarray:
 
 
 def stack_wrists(wrists: dict) -> tuple[np.ndarray, np.ndarray]:
-    """``{side: (rot (T,3,3), transl (T,3))}`` -> ``rot (T, 2, 3, 3)``, ``transl (T, 2, 3)`` (left, right)."""
+    """``{side: (rot (T,3,3), transl (T,3))}`` -> ``rot (T, 2, 3, 3)``, ``transl (T, 2, 3)``.
+
+    Hands in (left, right) order.
+    """
     return (np.stack([wrists[s][0] for s in NET_SIDES], 1),
             np.stack([wrists[s][1] for s in NET_SIDES], 1))
 
@@ -271,18 +278,17 @@ def split_files(data_dir: Path, split: str) -> list[Path]:
 
 
 def _cache_path(cache_dir: Path, data_hash: str, split: str, voxel: bool, seed: int) -> Path:
-    key = hashlib.sha256(f"{data_hash}|{split}|{voxel}|{seed}|{FEATURE_VERSION}".encode()).hexdigest()
+    key = hashlib.sha256(
+        f"{data_hash}|{split}|{voxel}|{seed}|{FEATURE_VERSION}".encode()
+    ).hexdigest()
     return Path(cache_dir) / f"grip-{split}-{key[:16]}.npz"
 
 
 def _save(path: Path, fs: FrameSet) -> None:
     arrays = {f.name: getattr(fs, f.name) for f in fields(fs) if getattr(fs, f.name) is not None}
     arrays["names"], arrays["objects"] = np.array(fs.names), np.array(fs.objects)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "wb") as f:
+    with atomic_file(path) as f:
         np.savez(f, **arrays)
-    os.replace(tmp, path)
 
 
 def _load(path: Path) -> FrameSet:
@@ -333,7 +339,9 @@ def _build(data_dir: Path, split: str, seed: int, progress: bool) -> FrameSet:
     per_seq, names, objects = [], [], []
     for f in _progress(files, f"features {split}", progress):
         seq = read_grab(f)
-        per_seq.append(sequence_features(library, seq, voxel=False, rng=sequence_rng(seed, seq.name)))
+        per_seq.append(
+            sequence_features(library, seq, voxel=False, rng=sequence_rng(seed, seq.name))
+        )
         names.append(seq.name)
         objects.append(seq.obj_name)
     return _concat(per_seq, names, objects)
@@ -378,7 +386,9 @@ def recompute_proximity(fs: FrameSet, idx: np.ndarray, poses_6d: np.ndarray, lib
         pts = hand_proximity_points(poses_6d[g], fs.wrist_rot[f].astype(float),
                                     fs.wrist_transl[f].astype(float), float(fs.hand_scale[f[0]]))
         # GRAB's row-vector convention world = local @ R + t inverts to (world - t) @ R.T
-        local = np.einsum("thnj,tij->thni", pts - fs.obj_transl[f][:, None, None], fs.obj_rot[f].astype(float))
+        local = np.einsum(
+            "thnj,tij->thni", pts - fs.obj_transl[f][:, None, None], fs.obj_rot[f].astype(float)
+        )
         # far="coarse": the distances of sensors.signed_object_distance, as at inference
         sd = library.field(str(fs.objects[s])).signed_distance(local, far="coarse")
         out[g] = attention(np.maximum(sd, 0.0), C.PROXIMITY_DECAY)

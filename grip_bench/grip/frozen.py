@@ -22,7 +22,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from .blocks import ResBlock, ResMLP
+from ..nn.blocks import ResBlock, ResMLP
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16}
 

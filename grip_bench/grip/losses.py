@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import torch
 
-from grip_bench import constants as C
 from grip_bench.grip.ltc import check_mode
+from grip_bench.nn.terms import proximity_l1
 
 HandFn = Callable[[torch.Tensor], torch.Tensor]  # poses (..., 2, J, 6) -> vertices (..., 2, V, 3)
 
@@ -53,16 +53,6 @@ def pose_l2(pred: torch.Tensor, gt: torch.Tensor, space: str = "6d") -> torch.Te
 
         pred, gt = rotation_6d_to_matrix(pred), rotation_6d_to_matrix(gt)
     return (pred - gt).pow(2).mean()
-
-
-def proximity_attention(signed_distance: torch.Tensor) -> torch.Tensor:
-    """GRIP Eq. 1 on signed distances (m): ``exp(-50 d)``, 1 inside the object."""
-    return torch.exp(-C.PROXIMITY_DECAY * torch.relu(signed_distance))
-
-
-def proximity_l1(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
-    """Mean absolute proximity-feature error; pred, gt (..., 2, P) in exp(-50 d) units."""
-    return (pred - gt).abs().mean()
 
 
 def output_consistency(pred_t, pred_t1, gt_t=None, gt_t1=None) -> torch.Tensor:
@@ -122,20 +112,6 @@ def rnet_loss(refined, gt_poses, cfg: LossConfig, hand_fn: HandFn | None = None)
     if hand_fn is not None:
         terms["vertex"] = vertex_l1(refined, gt_poses, hand_fn)
     return _total(terms, weights), terms
-
-
-def penetration_depth(signed_distance: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-    """Summed depth (m) of the vertices inside the object, averaged over the hands.
-
-    signed_distance (..., V) of each hand's vertices (negative inside); mask (...) bool or
-    float selects the hands that count (None: all). Zero for a hand that touches without
-    entering, so it pushes fingers out of the object and never away from its surface.
-    """
-    depth = torch.relu(-signed_distance).sum(-1)  # (...)
-    if mask is None:
-        return depth.mean()
-    w = mask.to(depth.dtype)
-    return (depth * w).sum() / w.sum().clamp(min=1.0)
 
 
 def _consistency_terms(consistency, dz, pred, gt) -> dict:

@@ -65,7 +65,7 @@ def encoder_decoder(cfg, out_dim: int):
     ``cfg`` provides in_dim, latent, n_frames, width, hidden, dropout, n_enc_blocks and
     n_dec_blocks (CNetConfig and ANetConfig do). Returns ``(encoder, decoder)``.
     """
-    from .blocks import ResMLP
+    from ..nn.blocks import ResMLP
 
     block = dict(width=cfg.width, hidden=cfg.hidden, dropout=cfg.dropout)
     encoder = ResMLP(cfg.in_dim, cfg.n_frames * cfg.latent, n_blocks=cfg.n_enc_blocks, **block)

@@ -1,11 +1,14 @@
-"""GRIP inference over whole sequences (GRIP Fig. 2): ANet -> stage one -> CNet -> stage two -> RNet.
+"""GRIP inference over whole sequences (GRIP Fig. 2).
+
+ANet -> stage one -> CNet -> stage two -> RNet:
 
 1. **ANet** denoises both arms autoregressively (current frame = the frame it denoised
    last, plus the next 5 noisy frames); offline, in overlapping pieces run side by side
    (``denoise_arms_many``: the same values, fewer sequential steps). The wrists follow
-   by forward kinematics of the procedural body: the rigid change of each FK wrist (denoised vs input arms) is applied
-   to the input hand wrist, which for SynthGRAB (hand wrist = body wrist) is exactly the
-   denoised body's wrist. Without ANet (``use_anet=False``) the input wrists are used.
+   by forward kinematics of the procedural body: the rigid change of each FK wrist
+   (denoised vs input arms) is applied to the input hand wrist, which for SynthGRAB (hand
+   wrist = body wrist) is exactly the denoised body's wrist. Without ANet
+   (``use_anet=False``) the input wrists are used.
 2. **Stage one**: ambient + mean-hand proximity at those wrists, future cue -> **CNet**
    on pairs (t, t+1) -> both hands' poses.
 3. **Stage two**: proximity recomputed on CNet's hands -> **RNet** on interaction frames
@@ -32,9 +35,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from .. import constants as C
 from ..bodies.layouts import SMPLX_INDEX
-from ..errors import InputError
+from ..core import constants as C
+from ..core.errors import InputError
 from ..geometry.rotations import matrix_to_axis_angle, rotation_6d_to_axis_angle
 from ..sensors import NET_SIDES, future_cue, proximity_feature, stage_one, wrist_frames
 from .data import (
@@ -120,7 +123,10 @@ def _recursion(anet, noisy: list[np.ndarray], online: bool, stops=None) -> list[
     stops = lengths if stops is None else np.minimum(np.asarray(stops), lengths)
     for t in range(int(stops.max(initial=0)) - 1):
         live = np.flatnonzero(stops - 1 > t)
-        fut = [np.minimum(np.arange(t + 1, t + 1 + n), t + 1 if online else lengths[i] - 1) for i in live]
+        fut = [
+            np.minimum(np.arange(t + 1, t + 1 + n), t + 1 if online else lengths[i] - 1)
+            for i in live
+        ]
         lat = anet.encode(_t(np.stack([out[i][t] for i in live])),
                           _t(np.stack([noisy[i][f] for i, f in zip(live, fut, strict=True)])))
         res = anet.decode(lat.z[:, 1]).numpy()  # only frame t+1 is kept
@@ -130,7 +136,10 @@ def _recursion(anet, noisy: list[np.ndarray], online: bool, stops=None) -> list[
 
 
 def _body_fk(seq, body_pose: np.ndarray):
-    """Procedural-body FK ``(rot (T,55,3,3), joints (T,55,3))`` of ``seq`` with ``body_pose (T, 63)``."""
+    """Procedural-body FK ``(rot (T,55,3,3), joints (T,55,3))`` of ``seq``.
+
+    With ``body_pose (T, 63)``.
+    """
     from ..bodies.body import ProceduralBody
 
     body = ProceduralBody(seq.height or C.BODY_HEIGHT, seq.hand_scale or 1.0)
@@ -200,7 +209,10 @@ class GripPipeline:
             poses = [arms_to_wrists(seq, w) for seq, w in zip(seqs, wrists, strict=True)]
         arms = denoise_arms_many(self.nets["anet"], [arms_6d(p) for p in poses], self.opt.online)
         new = [set_arms(p, a) for p, a in zip(poses, arms, strict=True)]
-        return [(n, moved_wrists(seq, p, n, w)) for seq, p, n, w in zip(seqs, poses, new, wrists, strict=True)]
+        return [
+            (n, moved_wrists(seq, p, n, w))
+            for seq, p, n, w in zip(seqs, poses, new, wrists, strict=True)
+        ]
 
     def cnet_poses(self, seq, library, body_pose, wrists) -> np.ndarray:
         """Stage one + CNet: both hands' poses ``(T, 2, 15, 6)``."""
@@ -268,7 +280,10 @@ class GripPipeline:
     @torch.no_grad()
     def refine_many(self, seqs, library, poses: list, wrists: list) -> list[np.ndarray]:
         """:meth:`refine` of several sequences, RNet batched across their interaction frames."""
-        rows = [self._interaction(seq, library, p, w) for seq, p, w in zip(seqs, poses, wrists, strict=True)]
+        rows = [
+            self._interaction(seq, library, p, w)
+            for seq, p, w in zip(seqs, poses, wrists, strict=True)
+        ]
         frames = [np.flatnonzero(mask.any(1)) for mask, _ in rows]
         x = np.concatenate([p[f] for p, f in zip(poses, frames, strict=True)])
         prox = np.concatenate([pr[f] for (_, pr), f in zip(rows, frames, strict=True)])
@@ -333,7 +348,10 @@ class GripPipeline:
 
 
 def with_hands(seq, poses: np.ndarray, body_pose=None, wrists=None):
-    """Copy of ``seq`` with finger poses ``(T, 2, 15, 6)`` (left, right), optionally new arms and wrists."""
+    """Copy of ``seq`` with finger poses ``(T, 2, 15, 6)`` (left, right).
+
+    Optionally with new arms and wrists.
+    """
     from ..data.sequence import body_fullpose, hand_fullpose
 
     out = seq.copy()
@@ -359,6 +377,8 @@ def with_hands(seq, poses: np.ndarray, body_pose=None, wrists=None):
 def check_future(variant: Variant, override: int | None) -> None:
     """A ``--future-frames`` override must match what the checkpoint's CNet was trained with."""
     if override is not None and override != variant.future_frames:
-        raise InputError(f"this checkpoint's CNet was trained with {variant.future_frames} future "
-                         f"frames; use the method grip-future{override} for {override}", "--future-frames")
-
+        raise InputError(
+            f"this checkpoint's CNet was trained with {variant.future_frames} future "
+            f"frames; use the method grip-future{override} for {override}",
+            "--future-frames",
+        )

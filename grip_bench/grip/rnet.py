@@ -14,15 +14,15 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from grip_bench.constants import (
+from grip_bench.core.constants import (
     GRIP_DROPOUT,
     GRIP_WIDTH,
     N_HAND_POSE_JOINTS,
     PROXIMITY_N_VERTS,
     ROT6D_DIM,
 )
-from grip_bench.errors import InputError
-from grip_bench.grip.blocks import ResMLP, check_config, check_shape
+from grip_bench.core.errors import InputError
+from grip_bench.nn.blocks import ResMLP, check_config, check_shape
 
 N_HANDS = 2
 

@@ -28,37 +28,28 @@ import contextlib
 import copy
 import hashlib
 import json
-import os
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from .. import constants as C
-from ..checkpoint import load_checkpoint, save_checkpoint
-from ..errors import InputError
+from ..core import constants as C
+from ..core.checkpoint import load_checkpoint, save_checkpoint
+from ..core.errors import InputError
+from ..core.io import atomic_file
 from ..geometry.distance import grid_signed_distance_many
 from ..geometry.rotations import rotation_6d_to_axis_angle, rotation_6d_to_matrix
+from ..nn.terms import penetration_depth, proximity_attention, proximity_l1
 from .anet import ANetConfig
 from .cnet import CNetConfig, future_cue_dim
 from .data import FEATURE_VERSION, FrameSet, build_split, hand_model, recompute_proximity
-from .losses import (
-    LossConfig,
-    anet_loss,
-    cnet_loss,
-    penetration_depth,
-    proximity_attention,
-    proximity_l1,
-    rnet_loss,
-)
+from .losses import LossConfig, anet_loss, cnet_loss, rnet_loss
 from .rnet import RNetConfig
 
 STAGES = ("anet", "cnet", "rnet")
 CONFIG_CLASSES = {"anet": ANetConfig, "cnet": CNetConfig, "rnet": RNetConfig}
 VOXEL_DIM = int(np.prod(C.VOXEL_CELLS))
-FEATURE_CACHE_ENV = "GRIP_BENCH_FEATURE_CACHE"  # folder for the per-split feature .npz files
 
 
 @dataclass(frozen=True)
@@ -88,10 +79,18 @@ class Variant:
 def build_configs(hp: dict, variant: Variant) -> dict:
     """Network configs ``{anet, cnet, rnet}`` from a profile's ``[grip]`` section."""
     drop = float(hp["dropout"])
-    cnet = CNetConfig(ambient_dim=variant.ambient_dim, future_dim=future_cue_dim(variant.future_frames),
-                      hidden=hp["hidden"], width=hp["width"], latent=hp["latent"], dropout=drop,
-                      consistency=variant.consistency)
-    anet = ANetConfig(hidden=hp["anet_hidden"], width=hp["anet_width"], latent=hp["latent"], dropout=drop)
+    cnet = CNetConfig(
+        ambient_dim=variant.ambient_dim,
+        future_dim=future_cue_dim(variant.future_frames),
+        hidden=hp["hidden"],
+        width=hp["width"],
+        latent=hp["latent"],
+        dropout=drop,
+        consistency=variant.consistency,
+    )
+    anet = ANetConfig(
+        hidden=hp["anet_hidden"], width=hp["anet_width"], latent=hp["latent"], dropout=drop
+    )
     rnet = RNetConfig(hidden=hp["rnet_hidden"], width=hp["rnet_width"], dropout=drop)
     return {"anet": anet, "cnet": cnet, "rnet": rnet}
 
@@ -143,7 +142,9 @@ class VertexFn:
     def __init__(self, n_vertices: int):
         self.model = hand_model(1.0)
         V = self.model.hands[0].num_vertices
-        self.ids = None if n_vertices in (0, V) else np.linspace(0, V - 1, n_vertices).round().astype(int)
+        self.ids = (
+            None if n_vertices in (0, V) else np.linspace(0, V - 1, n_vertices).round().astype(int)
+        )
 
     def __call__(self, poses: torch.Tensor) -> torch.Tensor:
         lead = poses.shape[:-3]
@@ -182,14 +183,22 @@ class HandObjectDistance:
 
 # --- RNet data ------------------------------------------------------------------------------
 @torch.no_grad()
-def cnet_predict(cnet, fs: FrameSet, idx: np.ndarray, variant: Variant, batch: int = 1024) -> np.ndarray:
+def cnet_predict(
+    cnet, fs: FrameSet, idx: np.ndarray, variant: Variant, batch: int = 1024
+) -> np.ndarray:
     """CNet's poses at frames ``idx`` ``(N, 2, 15, 6)`` (eval mode)."""
     cnet.eval()
     out = []
     for s in range(0, len(idx), batch):
         b = cnet_batch(fs, idx[s:s + batch], variant)
-        out.append(cnet(b["body"], b["ambient"], b["proximity"], b["future"] if variant.future_frames else None)
-                   .poses_t.numpy())
+        out.append(
+            cnet(
+                b["body"],
+                b["ambient"],
+                b["proximity"],
+                b["future"] if variant.future_frames else None,
+            ).poses_t.numpy()
+        )
     return np.concatenate(out) if out else np.zeros((0, 2, 15, 6), np.float32)
 
 
@@ -201,7 +210,9 @@ def perturb_poses(poses_6d: np.ndarray, sigma: float, rng: np.random.Generator) 
     return aa_to_6d(aa + rng.normal(0.0, sigma, size=aa.shape))
 
 
-def rnet_data(cnet, fs: FrameSet, library, variant: Variant, hp: dict, rng, objects: list[str]) -> dict:
+def rnet_data(
+    cnet, fs: FrameSet, library, variant: Variant, hp: dict, rng, objects: list[str]
+) -> dict:
     """RNet samples on interaction frames: CNet outputs plus perturbed GT hands (GRIP Sup. 6).
 
     Returns arrays ``poses (N,2,15,6)``, ``proximity (N,2,99)`` recomputed on those
@@ -265,7 +276,9 @@ def _epoch(stage: Stage, opt, bs: int, seed: int, epoch: int, progress: bool) ->
     """One pass over the train samples in a seeded order; returns the mean loss."""
     stage.model.train()
     torch.manual_seed(_seed(seed, STAGES.index(stage.name), epoch, 1))
-    order = np.random.default_rng(_seed(seed, STAGES.index(stage.name), epoch)).permutation(stage.n_train)
+    order = np.random.default_rng(_seed(seed, STAGES.index(stage.name), epoch)).permutation(
+        stage.n_train
+    )
     # drop a last batch of 1: BatchNorm cannot normalise a single sample
     starts = [s for s in range(0, stage.n_train, bs) if min(bs, stage.n_train - s) > 1]
     bar = _bar(starts, f"{stage.name} epoch {epoch + 1}", progress)
@@ -304,10 +317,17 @@ class StageState:
     done: bool = False
 
 
-def fit(stage: Stage, hp: dict, st: StageState, seed: int, epochs: int, save, progress: bool) -> StageState:
-    """Train ``stage.model`` from state ``st``; ``save(st)`` after each epoch. Returns the final state."""
+def fit(
+    stage: Stage, hp: dict, st: StageState, seed: int, epochs: int, save, progress: bool
+) -> StageState:
+    """Train ``stage.model`` from state ``st``; returns the final state.
+
+    ``save(st)`` runs after each epoch.
+    """
     opt = torch.optim.Adam(stage.model.parameters(), lr=hp["lr"], weight_decay=hp["weight_decay"])
-    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=hp["lr_factor"], patience=hp["lr_patience"])
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
+        opt, factor=hp["lr_factor"], patience=hp["lr_patience"]
+    )
     if st.optimizer is not None:
         opt.load_state_dict(st.optimizer)
         sched.load_state_dict(st.scheduler)
@@ -342,7 +362,10 @@ def _subset(n: int, cap: int, rng) -> np.ndarray:
 
 def _anet_stage(model, data: dict, hp) -> Stage:
     cfg, lc = model.cfg, LossConfig()
-    idx = {s: _subset(len(data[s]), hp[f"max_{s}_frames"], np.random.default_rng(hp["seed"])) for s in ("train", "val")}
+    idx = {
+        s: _subset(len(data[s]), hp[f"max_{s}_frames"], np.random.default_rng(hp["seed"]))
+        for s in ("train", "val")
+    }
 
     def batch(split, i):
         return anet_batch(data[split], idx[split][i], cfg)
@@ -356,13 +379,17 @@ def _anet_stage(model, data: dict, hp) -> Stage:
 def _cnet_stage(model, data: dict, hp, variant: Variant) -> Stage:
     lc, vert = LossConfig(), VertexFn(hp["loss_vertices"])
     rng = np.random.default_rng(hp["seed"] + 1)
-    idx = {s: _subset_of(data[s].pair_index(), hp[f"max_{s}_frames"], rng) for s in ("train", "val")}
+    idx = {
+        s: _subset_of(data[s].pair_index(), hp[f"max_{s}_frames"], rng) for s in ("train", "val")
+    }
 
     def batch(split, i):
         return cnet_batch(data[split], idx[split][i], variant)
 
     def loss(m, b):
-        out = m(b["body"], b["ambient"], b["proximity"], b["future"] if variant.future_frames else None)
+        out = m(
+            b["body"], b["ambient"], b["proximity"], b["future"] if variant.future_frames else None
+        )
         return cnet_loss(out, b, lc, variant.consistency, vert)
 
     return Stage("cnet", model, len(idx["train"]), len(idx["val"]), batch, loss)
@@ -395,7 +422,9 @@ def _rnet_stage(model, rdata: dict, hp, dist: HandObjectDistance | None = None) 
             total = total + w_pen * terms["penetration"]
         return total, terms
 
-    return Stage("rnet", model, len(rdata["train"]["poses"]), len(rdata["val"]["poses"]), batch, loss)
+    return Stage(
+        "rnet", model, len(rdata["train"]["poses"]), len(rdata["val"]["poses"]), batch, loss
+    )
 
 
 # --- orchestration ------------------------------------------------------------------------------
@@ -430,13 +459,24 @@ def _load_partial(path: Path, fp: dict) -> tuple[dict, dict]:
     return payload["models"], states
 
 
-def train_grip(data_dir, out, *, profile: dict, variant: Variant = Variant(), seed: int | None = None,
-               device: str = "cpu", progress: bool = True) -> Path:
+def train_grip(
+    data_dir,
+    out,
+    *,
+    profile: dict,
+    variant: Variant = Variant(),
+    seed: int | None = None,
+    device: str = "cpu",
+    progress: bool = True,
+    feature_cache: Path | None = None,
+) -> Path:
     """Train ANet, CNet and RNet on ``data_dir`` (train split; val for early stopping).
 
     Writes the checkpoint ``out`` (all three networks' configs and weights, data hash,
-    versions, training curves). Resumes from ``<out>.partial`` when present; an existing
-    ``out`` of the same data, profile, seed and variant is kept as it is. Returns ``out``.
+    versions, training curves; no wall times, so the same inputs give the same
+    bytes). Features go to ``feature_cache`` (None: ``<out dir>/.grip-cache``). Resumes
+    from ``<out>.partial`` when present; an existing ``out`` of the same data, profile, seed
+    and variant is kept as it is. Returns ``out``.
     """
     from ..data.grab_io import dataset_hash
     from ..data.library import ObjectLibrary
@@ -451,12 +491,20 @@ def train_grip(data_dir, out, *, profile: dict, variant: Variant = Variant(), se
     fp = _fingerprint(hp, variant, data_hash, seed)
     if _already_trained(out, fp):
         return out
-    t0 = time.perf_counter()
     # features are shared by every variant trained on the same data (keyed by its hash)
-    cache = Path(os.environ.get(FEATURE_CACHE_ENV) or out.parent / ".grip-cache")
-    data = {s: build_split(data_dir, s, cache_dir=cache, voxel=variant.ambient == "voxel", seed=seed,
-                           data_hash=data_hash, progress=progress) for s in ("train", "val")}
-    t_data = time.perf_counter() - t0
+    cache = Path(feature_cache) if feature_cache else out.parent / ".grip-cache"
+    data = {
+        s: build_split(
+            data_dir,
+            s,
+            cache_dir=cache,
+            voxel=variant.ambient == "voxel",
+            seed=seed,
+            data_hash=data_hash,
+            progress=progress,
+        )
+        for s in ("train", "val")
+    }
     configs = build_configs(hp, variant)
     partial = out.with_name(out.name + ".partial")
     models_done, states = _load_partial(partial, fp)
@@ -483,9 +531,10 @@ def train_grip(data_dir, out, *, profile: dict, variant: Variant = Variant(), se
     meta = {**fp, "curves": {k: {"train": s.train_curve, "val": s.val_curve, "epochs": s.epoch}
                              for k, s in states.items()},
             "variant": asdict(variant), "profile": profile.get("name", "?"),
-            "seconds": {"features": t_data, "total": time.perf_counter() - t0},
             "n_frames": {s: len(d) for s, d in data.items()}}
-    save_checkpoint(out, model_state={k: m.state_dict() for k, m in nets.items()}, configs=configs, meta=meta)
+    save_checkpoint(
+        out, model_state={k: m.state_dict() for k, m in nets.items()}, configs=configs, meta=meta
+    )
     partial.unlink(missing_ok=True)
     return out
 
@@ -504,10 +553,8 @@ def _shared_anet_path(cache: Path, fp: dict, cfg) -> Path:
 def _save_shared_anet(path: Path, anet, st: StageState) -> None:
     curves = {"epoch": st.epoch, "best_loss": float(st.best_loss),
               "train_curve": st.train_curve, "val_curve": st.val_curve}
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"state": anet.state_dict(), "curves": curves}, tmp)
-    os.replace(tmp, path)
+    with atomic_file(path) as f:
+        torch.save({"state": anet.state_dict(), "curves": curves}, f)
 
 
 def _load_shared_anet(path: Path, anet) -> StageState | None:
@@ -551,7 +598,10 @@ def _make_stage(name, nets, data, hp, variant, library) -> Stage:
         return _cnet_stage(nets["cnet"], data, hp, variant)
     rng = np.random.default_rng(_seed(hp["seed"], 7))
     objects = sorted({str(o) for s in ("train", "val") for o in data[s].objects})
-    rdata = {s: rnet_data(nets["cnet"], data[s], library, variant, hp, rng, objects) for s in ("train", "val")}
+    rdata = {
+        s: rnet_data(nets["cnet"], data[s], library, variant, hp, rng, objects)
+        for s in ("train", "val")
+    }
     return _rnet_stage(nets["rnet"], rdata, hp, HandObjectDistance(library, objects))
 
 

@@ -1,4 +1,6 @@
-"""Evaluation metrics: pure functions on batched arrays and meshes (DESIGN 5).
+"""Evaluation metrics: pure functions on batched arrays and meshes.
+
+Definitions: docs/contract.md, "Definitions".
 
 Units in, units out: metres, m^3, fractions, m/s^2; ``registry.METRICS`` holds the report
 unit and scale of each metric id. Heavy dependencies (mujoco, coacd, manifold3d, libigl)

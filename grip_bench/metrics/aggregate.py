@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import constants as C
-from ..errors import InputError
+from ..core import constants as C
+from ..core.errors import InputError
 from .evaluate import EvalOptions, RowLabels
 
 ALL_SPLITS = "all"
@@ -90,15 +90,21 @@ def gt_sequences(gt_dir: Path, split: str) -> tuple[dict[str, dict], str]:
     from ..data.splits import SPLIT_NAMES, read_splits
 
     if split != ALL_SPLITS and split not in SPLIT_NAMES:
-        raise InputError(f"unknown split {split!r} (allowed: {', '.join(SPLIT_NAMES)}, all)", "--split")
-    headers = {p.relative_to(gt_dir).as_posix(): read_grab_header(p) for p in list_sequences(gt_dir)}
+        raise InputError(
+            f"unknown split {split!r} (allowed: {', '.join(SPLIT_NAMES)}, all)", "--split"
+        )
+    headers = {
+        p.relative_to(gt_dir).as_posix(): read_grab_header(p) for p in list_sequences(gt_dir)
+    }
     if split == ALL_SPLITS:
         return headers, split
     wanted = set(read_splits(gt_dir, default="grip")[split])
     return {k: h for k, h in headers.items() if h["obj_name"] in wanted}, split
 
 
-def match_sequences(pred_dir: Path, gt_dir: Path, split: str) -> tuple[list[tuple[str, dict, dict]], int]:
+def match_sequences(
+    pred_dir: Path, gt_dir: Path, split: str
+) -> tuple[list[tuple[str, dict, dict]], int]:
     """Matched (relative path, pred header, GT header) triples, sorted, and the number of
     predictions ignored because their GT sequence belongs to another split.
 
@@ -284,7 +290,7 @@ def evaluate_dirs(pred_dir, gt_dir, out_dir, *, method: str = "method", metrics=
 
 
 def _summary(labels, options, pred_dir, gt_dir, pred_manifest, results, ignored) -> dict:
-    from .. import __version__
+    from ..core.version import __version__
     from ..data.grab_io import dataset_hash
 
     failures: Counter = Counter()
@@ -306,8 +312,8 @@ def _summary(labels, options, pred_dir, gt_dir, pred_manifest, results, ignored)
 
 
 def _write_outputs(out_dir: Path, results, per_frame: bool, info: dict) -> None:
-    from ..bench.cache import atomic_write_text
-    from ..bench.results import write_results
+    from ..core.io import atomic_write_text
+    from ..results.schema import write_results
 
     out_dir.mkdir(parents=True, exist_ok=True)
     write_results([r for rows, _, _ in results for r in rows], out_dir / "results.csv")
@@ -352,7 +358,7 @@ def write_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> Path:
     import io
     import zipfile
 
-    from ..bench.cache import atomic_write_bytes
+    from ..core.io import atomic_write_bytes
 
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:

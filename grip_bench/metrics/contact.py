@@ -1,4 +1,4 @@
-"""Contact metrics on precomputed hand-to-object distances (DESIGN 5).
+"""Contact metrics on precomputed hand-to-object distances (docs/contract.md, "Definitions").
 
 Distances are signed (negative inside the object) and computed by the caller with a
 distance field; every function here is pure numpy. "In contact" means
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import constants as C
+from ..core import constants as C
 
 
 def in_contact(signed_dist: np.ndarray, threshold: float = C.CONTACT_THRESHOLD) -> np.ndarray:
@@ -33,7 +33,8 @@ def contact_ratio(
 ) -> float:
     """Share of masked (grasp) frames where the predicted hand touches or enters the object.
 
-    pred_signed_dist: (T, V) metres; mask: (T,) bool -> fraction in [0, 1], NaN without grasp frames.
+    pred_signed_dist: (T, V) metres; mask: (T,) bool -> fraction in [0, 1], NaN without grasp
+    frames.
     """
     mask = np.asarray(mask, dtype=bool)
     if not mask.any():

@@ -1,4 +1,6 @@
-"""Evaluate one predicted sequence against its ground truth: per hand, per metric (DESIGN 5).
+"""Evaluate one predicted sequence against its ground truth: per hand, per metric.
+
+Definitions: docs/contract.md, "Definitions".
 
 The metric functions of this package are pure; this module feeds them. Per sequence:
 
@@ -30,15 +32,15 @@ from functools import cached_property
 
 import numpy as np
 
-from .. import constants as C
-from ..bench.results import ResultRow
-from ..errors import InputError
+from ..core import constants as C
+from ..core.errors import InputError
+from ..results.schema import ResultRow
 from .contact import contact_consistency, contact_drift, grasp_mask, in_contact
 from .intersection import FailureCounter, intersection_volume_batch
 from .jitter import acceleration, jitter, jitter_error
 from .penetration import penetration_depth_from_sdf
 from .pose import mpjpe, mpvpe
-from .registry import METRICS
+from .registry import METRICS, metric
 
 SIDES = ("right", "left")
 PHYSICS_METRICS = ("sim_stable", "sim_disp", "sim_disp_hold")
@@ -72,8 +74,10 @@ class EvalOptions:
         else:
             unknown = [m for m in wanted if m not in known]
             if unknown:
-                raise InputError(f"unknown metric(s) {', '.join(unknown)} (known: {', '.join(known)})",
-                                 "--metrics")
+                raise InputError(
+                    f"unknown metric(s) {', '.join(unknown)} (known: {', '.join(known)})",
+                    "--metrics",
+                )
             ids = [m for m in known if m in set(wanted)]
         if not self.iv:
             ids = [m for m in ids if m != "iv"]
@@ -190,19 +194,28 @@ def _on_grasp(pair: SequencePair, side: str, values: np.ndarray) -> Measured:
     return Measured(idx, np.asarray(values, dtype=np.float64)[idx])
 
 
+@metric("mpjpe", "MPJPE", "mm", 1e3, False, "all", 1,
+        "mean error of the 15 finger joints (wrist and tips excluded), no alignment")
 def m_mpjpe(pair: SequencePair, side: str) -> Measured:
     return _all_frames(pair, mpjpe(pair.track("pred", side).joints, pair.track("gt", side).joints))
 
 
+@metric("mpvpe", "MPVPE", "mm", 1e3, False, "all", 1,
+        "mean error of all hand mesh vertices, no alignment")
 def m_mpvpe(pair: SequencePair, side: str) -> Measured:
     return _all_frames(pair, mpvpe(pair.track("pred", side).verts, pair.track("gt", side).verts))
 
 
+@metric("cc", "Contact consistency", "mm", 1e3, False, "grasp", 1,
+        "vertex error on hand vertices within 2 mm of the object in ground truth")
 def m_cc(pair: SequencePair, side: str) -> Measured:
     p, g = pair.track("pred", side), pair.track("gt", side)
     return _on_grasp(pair, side, contact_consistency(p.verts, g.verts, g.sd, C.CC_THRESHOLD))
 
 
+@metric("contact_drift", "Contact drift", "mm", 1e3, False, "grasp", 1,
+        "per-frame sliding of the method's contact points in the object's frame, "
+        "beyond the ground truth's (GT vs itself = 0)")
 def m_contact_drift(pair: SequencePair, side: str) -> Measured:
     """Sliding of the prediction's contacts beyond the ground truth's, in the object frame.
 
@@ -222,6 +235,8 @@ def m_contact_drift(pair: SequencePair, side: str) -> Measured:
     return _on_grasp(pair, side, contact_drift(p.sd, rel, mask, C.CONTACT_THRESHOLD))
 
 
+@metric("iv", "Intersection volume", "cm3", 1e6, False, "grasp", 1,
+        "exact vol(hand & object) with manifold3d; NaN plus a count on failure")
 def m_iv(pair: SequencePair, side: str) -> Measured:
     """Exact intersection volume on grasp frames (at most ``max_iv_frames`` evenly spaced
     ones when that is > 0); a hand with no vertex inside is 0 without a
@@ -230,7 +245,9 @@ def m_iv(pair: SequencePair, side: str) -> Measured:
     k = pair.options.max_iv_frames
     idx = physics_frames(pair.grasp(side), k) if k > 0 else np.flatnonzero(pair.grasp(side))
     faces = pair.poser.faces(side)
-    return Measured(idx, intersection_volumes(p.local[idx], p.sd[idx], faces, pair.mesh, pair.failures))
+    return Measured(
+        idx, intersection_volumes(p.local[idx], p.sd[idx], faces, pair.mesh, pair.failures)
+    )
 
 
 def intersection_volumes(local: np.ndarray, sd: np.ndarray, faces: np.ndarray, mesh,
@@ -249,34 +266,17 @@ def intersection_volumes(local: np.ndarray, sd: np.ndarray, faces: np.ndarray, m
     return out
 
 
+@metric("pen_depth", "Penetration depth", "mm", 1e3, False, "grasp", 1,
+        "largest depth of a hand vertex inside the object (exact signed distance)")
 def m_pen_depth(pair: SequencePair, side: str) -> Measured:
     return _on_grasp(pair, side, penetration_depth_from_sdf(pair.track("pred", side).sd))
 
 
+@metric("contact_ratio", "Contact ratio", "%", 1e2, True, "grasp", 1,
+        "share of grasp frames where the hand is within 4.5 mm of the object or inside")
 def m_contact_ratio(pair: SequencePair, side: str) -> Measured:
     touch = grasp_mask(pair.track("pred", side).sd, C.CONTACT_THRESHOLD)
     return _on_grasp(pair, side, touch.astype(np.float64))
-
-
-def _frame_jitter(verts: np.ndarray, fps: float) -> np.ndarray:
-    """Mean vertex acceleration magnitude (T-2,) m/s^2 at frames 1..T-2."""
-    if len(verts) < 3:
-        return np.zeros(0)
-    return np.linalg.norm(acceleration(verts, fps), axis=-1).mean(axis=-1)
-
-
-def m_jitter(pair: SequencePair, side: str) -> Measured:
-    v = pair.track("pred", side).verts
-    per = _frame_jitter(v, pair.gt.fps)
-    return Measured(np.arange(1, 1 + len(per)), per, value=jitter(v, pair.gt.fps))
-
-
-def m_jitter_err(pair: SequencePair, side: str) -> Measured:
-    """|jitter(pred) - jitter(GT)| of the sequence: not a mean of per-frame values (no frame rows)."""
-    p, g = pair.track("pred", side).verts, pair.track("gt", side).verts
-    n = max(len(p) - 2, 0)
-    return Measured(np.zeros(0, int), np.zeros(0), value=jitter_error(p, g, pair.gt.fps),
-                    n_frames=n, frame_rows=False)
 
 
 # ------------------------------------------------------------------ physics
@@ -334,25 +334,54 @@ def _sim(pair: SequencePair, side: str, protocol: str, attr: str) -> Measured:
     return Measured(idx, np.asarray(vals, dtype=np.float64))
 
 
+@metric("sim_stable", "Physics stability", "%", 1e2, True, "grasp", 1,
+        "MuJoCo, hand fixed, object free: share moving < 1 mm in 5 steps of 1/240 s "
+        "(evenly spaced grasp frames: [run] physics_frames per sequence and hand, 8 by default)")
 def m_sim_stable(pair: SequencePair, side: str) -> Measured:
     """Share of tested grasp frames stable under the paper protocol (a diverged run is unstable)."""
     return _sim(pair, side, "paper", "stable")
 
 
+@metric("sim_disp", "Simulated displacement", "mm", 1e3, False, "grasp", 1,
+        "object displacement after the paper protocol (5 steps of 1/240 s; "
+        "[run] physics_frames grasp frames)")
 def m_sim_disp(pair: SequencePair, side: str) -> Measured:
     return _sim(pair, side, "paper", "displacement")
 
 
+@metric("sim_disp_hold", "Simulated displacement (1 s hold)", "mm", 1e3, False, "grasp", 1,
+        "object displacement after 1 s of simulated time ([run] physics_frames grasp frames)")
 def m_sim_disp_hold(pair: SequencePair, side: str) -> Measured:
     return _sim(pair, side, "hold", "displacement")
 
 
-METRIC_FUNCS = {
-    "mpjpe": m_mpjpe, "mpvpe": m_mpvpe, "cc": m_cc, "contact_drift": m_contact_drift,
-    "iv": m_iv, "pen_depth": m_pen_depth, "contact_ratio": m_contact_ratio,
-    "sim_stable": m_sim_stable, "sim_disp": m_sim_disp, "sim_disp_hold": m_sim_disp_hold,
-    "jitter": m_jitter, "jitter_err": m_jitter_err,
-}
+# ------------------------------------------------------------------ motion
+def _frame_jitter(verts: np.ndarray, fps: float) -> np.ndarray:
+    """Mean vertex acceleration magnitude (T-2,) m/s^2 at frames 1..T-2."""
+    if len(verts) < 3:
+        return np.zeros(0)
+    return np.linalg.norm(acceleration(verts, fps), axis=-1).mean(axis=-1)
+
+
+@metric("jitter", "Jitter", "m/s2", 1.0, False, "all", 1,
+        "mean acceleration magnitude of hand vertices (second differences at 30 fps)")
+def m_jitter(pair: SequencePair, side: str) -> Measured:
+    v = pair.track("pred", side).verts
+    per = _frame_jitter(v, pair.gt.fps)
+    return Measured(np.arange(1, 1 + len(per)), per, value=jitter(v, pair.gt.fps))
+
+
+@metric("jitter_err", "Jitter error", "m/s2", 1.0, False, "all", 1,
+        "absolute difference between the method's jitter and ground truth")
+def m_jitter_err(pair: SequencePair, side: str) -> Measured:
+    """|jitter(pred) - jitter(GT)| of the sequence (not a mean of per-frame values, so it has
+    no frame rows)."""
+    p, g = pair.track("pred", side).verts, pair.track("gt", side).verts
+    n = max(len(p) - 2, 0)
+    return Measured(np.zeros(0, int), np.zeros(0), value=jitter_error(p, g, pair.gt.fps),
+                    n_frames=n, frame_rows=False)
+
+
 
 
 # ------------------------------------------------------------------ rows
@@ -396,11 +425,15 @@ def evaluate_sequence(pred, gt, library, *, metrics=None, per_frame: bool = Fals
     """
     check_pair(pred, gt)
     ids = options.metric_ids(metrics)
-    pair = SequencePair(pred, gt, library, options, failures if failures is not None else FailureCounter())
+    pair = SequencePair(
+        pred, gt, library, options, failures if failures is not None else FailureCounter()
+    )
     rows, frame_rows = [], []
     for side in options.sides:
-        for metric in ids:
-            row, frames = _rows(labels, gt, side, metric, METRIC_FUNCS[metric](pair, side), per_frame)
+        for metric_id in ids:
+            row, frames = _rows(
+                labels, gt, side, metric_id, METRICS.get(metric_id).compute(pair, side), per_frame
+            )
             rows.append(row)
             frame_rows.extend(frames)
         if stats is not None:

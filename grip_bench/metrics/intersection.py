@@ -1,4 +1,6 @@
-"""Exact intersection volume of two closed meshes with manifold3d (DESIGN 5, metric ``iv``).
+"""Exact intersection volume of two closed meshes with manifold3d (metric ``iv``).
+
+Definition: docs/contract.md, "Definitions".
 
 Why not the usual recipes: trimesh's ``voxelized()`` keeps only the surface shell of voxels
 (volumes 3-10x too low) and an open hand (MANO's wrist hole) makes manifold3d return an empty
@@ -72,7 +74,10 @@ def to_manifold(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray | No
     if hasattr(m3, "Mesh64"):
         mesh = m3.Mesh64(vert_properties=v, tri_verts=np.ascontiguousarray(faces, dtype=np.uint64))
     else:  # older manifold3d: float32, made precise by the local origin above
-        mesh = m3.Mesh(vert_properties=v.astype(np.float32), tri_verts=np.ascontiguousarray(faces, dtype=np.uint32))
+        mesh = m3.Mesh(
+            vert_properties=v.astype(np.float32),
+            tri_verts=np.ascontiguousarray(faces, dtype=np.uint32),
+        )
     man = m3.Manifold(mesh)
     if man.status() != m3.Error.NoError and mesh.merge():
         man = m3.Manifold(mesh)  # duplicated seam vertices: merging them often repairs it
@@ -181,7 +186,9 @@ def intersection_volume_batch(
         if _disjoint(vt, vo):
             continue
         man_hand = hands.at(vt)
-        out[t] = _fail(failures, "not a manifold") if man_hand is None else _volume(man_hand, man_obj)
+        out[t] = (
+            _fail(failures, "not a manifold") if man_hand is None else _volume(man_hand, man_obj)
+        )
     return out
 
 

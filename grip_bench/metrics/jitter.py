@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import constants as C
+from ..core import constants as C
 
 
 def acceleration(vertices: np.ndarray, fps: float = C.FPS) -> np.ndarray:

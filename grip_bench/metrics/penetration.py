@@ -1,4 +1,7 @@
-"""Penetration depth: how deep the hand's vertices reach inside the object (DESIGN 5)."""
+"""Penetration depth: how deep the hand's vertices reach inside the object.
+
+Definition: docs/contract.md, "Definitions".
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,6 @@
-"""Physics stability in MuJoCo: hand fixed, object free under gravity (DESIGN 5, GRIP supp. 11).
+"""Physics stability in MuJoCo: hand fixed, object free under gravity (GRIP supp. 11).
+
+Definitions: docs/contract.md, "Definitions".
 
 MuJoCo collides every mesh geom as its convex hull, so both bodies enter as convex pieces:
 the hand as one hull per bone (posed rigidly from the current frame's vertices, with a
@@ -21,7 +23,7 @@ import numpy as np
 if TYPE_CHECKING:  # trimesh costs 0.5 s to import; `grip-bench ls` should not pay it
     import trimesh
 
-from .. import constants as C
+from ..core import constants as C
 
 
 @dataclass(frozen=True)
@@ -131,7 +133,10 @@ def _cached_pieces(mesh: trimesh.Trimesh, threshold: float) -> list[np.ndarray]:
 
     def build() -> dict[str, np.ndarray]:
         pieces = _decompose(mesh, threshold)
-        return {"points": np.concatenate(pieces), "sizes": np.array([len(p) for p in pieces], np.int64)}
+        return {
+            "points": np.concatenate(pieces),
+            "sizes": np.array([len(p) for p in pieces], np.int64),
+        }
 
     key = mesh_key("convex_pieces", mesh.vertices, mesh.faces, params)
     def ok(a: dict) -> bool:
@@ -212,7 +217,10 @@ def _hand_key(v: np.ndarray, bone: np.ndarray) -> str:
 
 
 def _clusters(points: np.ndarray) -> list[np.ndarray]:
-    """Index arrays splitting ``points`` (N, 3) into compact groups of about SIM_HAND_PIECE_POINTS."""
+    """Index arrays splitting ``points`` (N, 3) into compact groups.
+
+    Each group has about ``SIM_HAND_PIECE_POINTS`` points.
+    """
     k = int(np.ceil(len(points) / C.SIM_HAND_PIECE_POINTS))
     if k <= 1:
         return [np.arange(len(points))]
@@ -240,7 +248,9 @@ def _add_pieces(spec, body, pieces: list[np.ndarray], prefix: str, margin: float
     for i, pts in enumerate(pieces):
         mesh = spec.add_mesh()
         mesh.name = f"{prefix}{i}"
-        mesh.uservert = np.asarray(pts, dtype=np.float64).ravel().tolist()  # hull computed by MuJoCo
+        mesh.uservert = (
+            np.asarray(pts, dtype=np.float64).ravel().tolist()
+        )  # hull computed by MuJoCo
         geom = body.add_geom()
         geom.type = mujoco.mjtGeom.mjGEOM_MESH
         geom.meshname = mesh.name
@@ -265,7 +275,9 @@ def _mass_properties(obj: trimesh.Trimesh, density: float) -> tuple[float, np.nd
 
     props = trimesh.triangles.mass_properties(obj.triangles, density=density)
     inertia = np.asarray(props.inertia)  # about the centre of mass
-    full = np.array([inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]])
+    full = np.array(
+        [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
+    )
     return float(props.mass), np.asarray(props.center_mass), full
 
 
@@ -337,7 +349,7 @@ def simulate(model, n_steps: int) -> tuple[float, bool]:
 
 def protocol_steps(protocol: Literal["paper", "hold"]) -> int:
     """Number of steps of constants.SIM_DT for a protocol name."""
-    from ..errors import InputError
+    from ..core.errors import InputError
 
     if protocol == "paper":
         return C.SIM_PAPER_STEPS
@@ -357,7 +369,9 @@ def _compiled(hand_pieces, obj, obj_pieces, obj_pose, up, density):
             a = np.ascontiguousarray(a)
             h.update(repr((a.dtype.str, a.shape)).encode())
             h.update(a.tobytes())
-    pose = None if obj_pose is None else [np.asarray(x, dtype=np.float64).tolist() for x in obj_pose]
+    pose = (
+        None if obj_pose is None else [np.asarray(x, dtype=np.float64).tolist() for x in obj_pose]
+    )
     sim = [(k, getattr(C, k)) for k in sorted(dir(C)) if k.startswith("SIM_") or k == "GRAVITY"]
     h.update(repr((pose, np.asarray(up, dtype=np.float64).tolist(), float(density), sim)).encode())
     key = h.hexdigest()
@@ -406,6 +420,8 @@ def stability_sequence(
     """
     pieces = convex_decomposition(obj)
     return [
-        stability(hands, obj, protocol, None if obj_poses is None else obj_poses[t], up, density, pieces)
+        stability(
+            hands, obj, protocol, None if obj_poses is None else obj_poses[t], up, density, pieces
+        )
         for t, hands in enumerate(hand_meshes)
     ]

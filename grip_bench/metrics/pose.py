@@ -1,4 +1,7 @@
-"""Pose metrics: per-frame MPJPE and MPVPE, global (no alignment), per hand (DESIGN 5)."""
+"""Pose metrics: per-frame MPJPE and MPVPE, global (no alignment), per hand.
+
+Definitions: docs/contract.md, "Definitions".
+"""
 
 from __future__ import annotations
 
@@ -9,11 +12,13 @@ FINGER_JOINTS = slice(1, 16)
 
 
 def _check_pair(pred: np.ndarray, gt: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
-    from ..errors import InputError
+    from ..core.errors import InputError
 
     pred, gt = np.asarray(pred, dtype=np.float64), np.asarray(gt, dtype=np.float64)
     if pred.shape != gt.shape or pred.ndim != 3 or pred.shape[-1] != 3:
-        raise InputError(f"expected matching (T, N, 3) arrays, got {pred.shape} and {gt.shape}", name)
+        raise InputError(
+            f"expected matching (T, N, 3) arrays, got {pred.shape} and {gt.shape}", name
+        )
     return pred, gt
 
 
@@ -31,7 +36,7 @@ def mpjpe(pred_joints: np.ndarray, gt_joints: np.ndarray) -> np.ndarray:
 
     pred_joints, gt_joints: (T, 21, 3) metres -> (T,) metres.
     """
-    from ..errors import InputError
+    from ..core.errors import InputError
 
     pred, gt = _check_pair(pred_joints, gt_joints, "joints")
     if pred.shape[1] != 21:

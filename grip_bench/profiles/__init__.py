@@ -11,7 +11,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from ..errors import InputError
+from ..core.errors import InputError
 
 PROFILE_DIR = Path(__file__).parent
 NAMES = ("smoke", "default", "paper")
@@ -51,7 +51,9 @@ def validate_profile(data: dict, schema: dict, where: Path) -> dict:
     out = {}
     for section, values in data.items():
         if section not in schema:
-            raise InputError(f"unknown section [{section}] (known: {', '.join(sorted(schema))})", where)
+            raise InputError(
+                f"unknown section [{section}] (known: {', '.join(sorted(schema))})", where
+            )
         if not isinstance(values, dict):
             raise InputError(f"[{section}] should be a table of keys", where)
         out[section] = {}
@@ -60,7 +62,9 @@ def validate_profile(data: dict, schema: dict, where: Path) -> dict:
                 raise InputError(f"unknown key {key!r} in [{section}]", f"{where}: {section}.{key}")
             ref = schema[section][key]
             if not _type_ok(value, ref):
-                raise InputError(f"{value!r} should be a {type(ref).__name__}", f"{where}: {section}.{key}")
+                raise InputError(
+                    f"{value!r} should be a {type(ref).__name__}", f"{where}: {section}.{key}"
+                )
             out[section][key] = float(value) if isinstance(ref, float) else value
     return out
 

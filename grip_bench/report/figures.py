@@ -1,4 +1,4 @@
-"""Report figures (DESIGN 6): contact heatmaps, penetration CDF, per-object bars.
+"""Report figures (docs/contract.md, "Tables"): contact heatmaps, penetration CDF, per-object bars.
 
 Pure functions: arrays or results frames in, one PNG out (matplotlib, Agg canvas, no pyplot
 state). The same input gives byte-identical PNGs: no dates or software tags in the metadata,
@@ -28,10 +28,10 @@ from matplotlib.collections import PolyCollection
 from matplotlib.colors import LinearSegmentedColormap, Normalize
 from matplotlib.figure import Figure
 
-from ..bench.cache import atomic_write_bytes
-from ..bench.stats import bootstrap_ci, per_sequence
-from ..constants import BOOTSTRAP_N, BOOTSTRAP_SEED
-from ..errors import InputError
+from ..core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED
+from ..core.errors import InputError
+from ..core.io import atomic_write_bytes
+from ..results.stats import bootstrap_ci, per_sequence
 
 SIDES = ("right", "left")
 VIEWS = ("palm", "back")
@@ -152,11 +152,15 @@ def _check_freqs(freqs: Mapping[str, Mapping[str, np.ndarray]], n_verts: Mapping
     out: dict[str, dict[str, np.ndarray]] = {}
     for method, per_side in freqs.items():
         if not isinstance(per_side, Mapping):
-            raise InputError(f"expected a {{side: (V,) array}} mapping, got {type(per_side).__name__}",
-                             f"freqs[{method!r}]")
+            raise InputError(
+                f"expected a {{side: (V,) array}} mapping, got {type(per_side).__name__}",
+                f"freqs[{method!r}]",
+            )
         bad = set(per_side) - set(SIDES)
         if bad or not per_side:
-            raise InputError(f"expected sides from {SIDES}, got {sorted(per_side)}", f"freqs[{method!r}]")
+            raise InputError(
+                f"expected sides from {SIDES}, got {sorted(per_side)}", f"freqs[{method!r}]"
+            )
         out[method] = {}
         for side, a in per_side.items():
             where = f"freqs[{method!r}][{side!r}]"
@@ -183,7 +187,9 @@ def _npy_bytes(a: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def write_heatmap_data(path: str | os.PathLike, freqs: Mapping[str, Mapping[str, np.ndarray]]) -> Path:
+def write_heatmap_data(
+    path: str | os.PathLike, freqs: Mapping[str, Mapping[str, np.ndarray]]
+) -> Path:
     """Save per-vertex contact frequencies (fractions) so ``report`` can redraw heatmaps.
 
     ``freqs[method][side] = (V,)``; a missing side is stored as NaN with ``has_<side>`` False.
@@ -209,8 +215,11 @@ def write_heatmap_data(path: str | os.PathLike, freqs: Mapping[str, Mapping[str,
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
         for key, a in arrays.items():
-            zf.writestr(zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0)), _npy_bytes(a),
-                        compress_type=zipfile.ZIP_DEFLATED)
+            zf.writestr(
+                zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0)),
+                _npy_bytes(a),
+                compress_type=zipfile.ZIP_DEFLATED,
+            )
     return atomic_write_bytes(path, buf.getvalue())
 
 
@@ -278,7 +287,9 @@ def _face_colours(view: HandView, values: np.ndarray | None, cmap, norm) -> np.n
     else:
         fv = values[view.faces]
         with np.errstate(invalid="ignore"):
-            face = np.where(np.isnan(fv).all(1), np.nan, np.nanmean(np.where(np.isnan(fv), 0, fv), 1))
+            face = np.where(
+                np.isnan(fv).all(1), np.nan, np.nanmean(np.where(np.isnan(fv), 0, fv), 1)
+            )
         pct = 100.0 * face
         rgb = cmap(norm(np.ma.masked_invalid(pct)))[:, :3]
         rgb[pct <= 0] = HAND_GREY  # exactly never touched: the plain hand
@@ -482,7 +493,15 @@ def _object_cis(rows: pd.DataFrame, methods: Sequence[str], objects: Sequence[st
 
 def _select(results_df: pd.DataFrame, metric: str, hand: str | None,
             perturbation: str | None) -> pd.DataFrame:
-    need = {"method", "object", "metric", "value", "hand", "perturbation", *("dataset", "split", "sequence")}
+    need = {
+        "method",
+        "object",
+        "metric",
+        "value",
+        "hand",
+        "perturbation",
+        *("dataset", "split", "sequence"),
+    }
     missing = sorted(need - set(results_df.columns))
     if missing:
         raise InputError(f"results frame lacks columns {missing}", "results_df")
@@ -506,9 +525,9 @@ def per_object_bars(results_df: pd.DataFrame, metric: str, out_png: str | os.Pat
 
     ``results_df``: results.csv rows (values in report units). Each sequence counts once (mean
     of its rows); the interval resamples that object's sequences
-    (:func:`grip_bench.bench.stats.bootstrap_ci`, ``n_boot`` resamples, ``seed``). ``hand=None`` pools both hands;
-    ``perturbation=None`` pools all test sets. ``methods`` picks and orders the bars (default:
-    ground truth first, then alphabetical).
+    (:func:`grip_bench.results.stats.bootstrap_ci`, ``n_boot`` resamples, ``seed``).
+    ``hand=None`` pools both hands; ``perturbation=None`` pools all test sets. ``methods``
+    picks and orders the bars (default: ground truth first, then alphabetical).
     """
     rows = _select(results_df, metric, hand, perturbation)
     present = sorted(set(rows["method"]))

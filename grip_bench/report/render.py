@@ -1,4 +1,4 @@
-"""Render computed tables (:class:`~grip_bench.bench.tables.TableData`) to Markdown, CSV,
+"""Render computed tables (:class:`~grip_bench.report.tables.TableData`) to Markdown, CSV,
 LaTeX (booktabs) and HTML (self-contained, click-to-sort).
 
 Conventions shared by all formats: ↓ / ↑ after a header say lower / higher is better; the
@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..bench.cache import atomic_write_text
-from ..bench.results import format_float, read_results, read_runtime
-from ..bench.stats import CI
-from ..bench.tables import TABLES, Cell, Column, Row, TableData, TableSpec, compute_table
-from ..constants import BOOTSTRAP_N, BOOTSTRAP_SEED
-from ..errors import InputError
+from ..core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED
+from ..core.errors import InputError
+from ..core.io import atomic_write_text
+from ..results.schema import format_float, read_results, read_runtime
+from ..results.stats import CI
+from .tables import TABLES, Cell, Column, Row, TableData, TableSpec, compute_table
 
 FORMATS = ("md", "csv", "tex", "html")
 MISSING = "–"
@@ -218,10 +218,27 @@ def to_csv(data: TableData) -> str:
 
 
 # --- LaTeX (booktabs) -----------------------------------------------------------------------
-_TEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
-                "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}",
-                "^": r"\textasciicircum{}", "↓": r"$\downarrow$", "↑": r"$\uparrow$",
-                "→": r"$\rightarrow$", "–": "--", "<": r"$<$", ">": r"$>$", "³": r"$^3$", "²": r"$^2$", "×": r"$\times$"}
+_TEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+    "↓": r"$\downarrow$",
+    "↑": r"$\uparrow$",
+    "→": r"$\rightarrow$",
+    "–": "--",
+    "<": r"$<$",
+    ">": r"$>$",
+    "³": r"$^3$",
+    "²": r"$^2$",
+    "×": r"$\times$",
+}
 
 
 def tex_escape(text: str) -> str:
@@ -258,7 +275,9 @@ def _tex_header(data: TableData) -> list[str]:
         top.append(rf"\multicolumn{{{span}}}{{c}}{{{text}}}" if span > 1 else text)
         if span > 1:
             rules.append(rf"\cmidrule(lr){{{start}-{start + span - 1}}}")
-        bottom += [tex_escape(sub_header(c, on_group)) for c in data.columns[start - 2:start - 2 + span]]
+        bottom += [
+            tex_escape(sub_header(c, on_group)) for c in data.columns[start - 2 : start - 2 + span]
+        ]
         start += span
     lines = [" & ".join(top) + r" \\"]
     if rules:
@@ -280,7 +299,9 @@ def to_latex(data: TableData) -> str:
         if row.group and (i == 0 or data.rows[i - 1].group != row.group):
             if i > 0:
                 lines.append(r"\midrule")
-            lines.append(rf"\multicolumn{{{ncol}}}{{l}}{{\textit{{{tex_escape(section_title(row))}}}}} \\")
+            lines.append(
+                rf"\multicolumn{{{ncol}}}{{l}}{{\textit{{{tex_escape(section_title(row))}}}}} \\"
+            )
         cells = [_tex_cell(c, marks.get((i, j))) for j, c in enumerate(row.cells)]
         lines.append(" & ".join([tex_escape(row.label)] + cells) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}"]
@@ -358,7 +379,10 @@ def _html_head(data: TableData) -> list[str]:
     for col, span, on_group in header_spans(data.columns):
         text = _esc(group_header(col, on_group))
         if span == 1 and not col.label:
-            top.append(f'<th data-col="{j}"{rs}>{_esc(_decorate(col.group, col.unit, col.higher_is_better))}</th>')
+            top.append(
+                f'<th data-col="{j}"{rs}>'
+                f'{_esc(_decorate(col.group, col.unit, col.higher_is_better))}</th>'
+            )
         else:
             top.append(f'<th colspan="{span}">{text}</th>' if span > 1 else f"<th>{text}</th>")
             bottom += [f'<th data-col="{j + k}">{_esc(sub_header(c, on_group))}</th>'
@@ -441,9 +465,17 @@ def render(data: TableData, fmt: str) -> str:
     return RENDERERS[fmt](data)
 
 
-def render_table(spec: TableSpec | str, results: pd.DataFrame | None, fmt: str = "md", *,
-                 runtime: pd.DataFrame | None = None, dataset: str | None = None,
-                 metrics_registry=None, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED) -> str:
+def render_table(
+    spec: TableSpec | str,
+    results: pd.DataFrame | None,
+    fmt: str = "md",
+    *,
+    runtime: pd.DataFrame | None = None,
+    dataset: str | None = None,
+    metrics_registry=None,
+    n_boot: int = BOOTSTRAP_N,
+    seed: int = BOOTSTRAP_SEED,
+) -> str:
     """Compute one table (by spec or registered id) from results frames and render it."""
     if isinstance(spec, str):
         spec = TABLES.get(spec)

@@ -13,7 +13,7 @@ import torch
 import trimesh
 from grip_baselines import bps, toch
 
-from grip_bench.constants import TOCH_N_POINTS
+from grip_bench.core.constants import TOCH_N_POINTS
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from grip_bench import constants
+from grip_bench.core import constants
 from grip_bench.geometry.distance import DistanceField
 from grip_bench.geometry.meshes import from_manifold
 
@@ -133,6 +133,8 @@ def test_sensor_workload_batched(benchmark, field, sensor_frames, far):
     """The sensor workload over 1000 frames in one call; ``far`` answers points beyond the grid."""
     pts = sensor_frames.reshape(-1, 3)
     field.signed_distance(pts[:10], far=far)  # build the far grid outside the timing
-    benchmark.pedantic(field.signed_distance, args=(pts,), kwargs={"far": far}, rounds=3, iterations=1)
+    benchmark.pedantic(
+        field.signed_distance, args=(pts,), kwargs={"far": far}, rounds=3, iterations=1
+    )
     outside = field._outside_grid(pts)
     benchmark.extra_info.update(frames=N_FRAMES, outside_fine_grid_share=float(outside.mean()))

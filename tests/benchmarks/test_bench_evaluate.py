@@ -32,7 +32,9 @@ def pair(tmp_path_factory):
     pred = gt.copy()
     centre = gt.object_vertices(np.asarray(lib.mesh(gt.obj_name).bounding_box.centroid)[None])[:, 0]
     d = centre - pred.rhand["transl"]
-    pred.rhand["transl"] = pred.rhand["transl"] + 0.0015 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    pred.rhand["transl"] = pred.rhand["transl"] + 0.0015 * d / np.linalg.norm(
+        d, axis=1, keepdims=True
+    )
     p = E.SequencePair(pred, gt, lib, E.EvalOptions(), FailureCounter())
     p.track("pred", "right")
     return p
@@ -42,8 +44,9 @@ def test_bench_iv_pairs_per_second(benchmark, pair):
     t = pair.track("pred", "right")
     idx = np.flatnonzero(pair.grasp("right"))
     faces = pair.poser.faces("right")
-    out = benchmark.pedantic(E.intersection_volumes, args=(t.local[idx], t.sd[idx], faces, pair.mesh),
-                             rounds=3)
+    out = benchmark.pedantic(
+        E.intersection_volumes, args=(t.local[idx], t.sd[idx], faces, pair.mesh), rounds=3
+    )
     booleans = int((t.sd[idx].min(axis=1) <= 0).sum())
     benchmark.extra_info.update(pairs_per_call=len(idx), booleans=booleans,
                                 early_outs=len(idx) - booleans)

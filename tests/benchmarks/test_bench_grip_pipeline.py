@@ -38,7 +38,11 @@ T = 120
 
 def paper_nets() -> dict:
     torch.manual_seed(0)
-    nets = {"anet": ANetConfig().build(), "cnet": CNetConfig().build(), "rnet": RNetConfig().build()}
+    nets = {
+        "anet": ANetConfig().build(),
+        "cnet": CNetConfig().build(),
+        "rnet": RNetConfig().build(),
+    }
     torch.nn.init.zeros_(nets["anet"].decoder.head.weight)
     torch.nn.init.zeros_(nets["anet"].decoder.head.bias)
     return {k: n.eval() for k, n in nets.items()}
@@ -79,7 +83,9 @@ def test_bench_pipeline_offline(benchmark, scene, n_seqs, precision):
     out = benchmark.pedantic(lambda: pipe.run_many(seqs, lib), rounds=3, iterations=1)
     assert len(out) == n_seqs and out[0].n_frames == T
     frames = T * n_seqs
-    benchmark.extra_info.update(frames=frames, threads=torch.get_num_threads(), net_flops_per_frame=_flops())
+    benchmark.extra_info.update(
+        frames=frames, threads=torch.get_num_threads(), net_flops_per_frame=_flops()
+    )
     if benchmark.stats is not None:
         benchmark.extra_info["frames_per_s"] = frames / benchmark.stats.stats.mean
 

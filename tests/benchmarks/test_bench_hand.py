@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from grip_bench.bodies import hand as hand_mod
+from grip_bench.bodies import hand_template as hand_mod
 from grip_bench.bodies.hand import ProceduralHand
 
 N_POSES = 10_000

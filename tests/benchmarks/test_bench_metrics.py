@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from grip_bench import constants as C
+from grip_bench.core import constants as C
 from grip_bench.metrics import (
     convex_decomposition,
     intersection_volume,
@@ -23,7 +23,11 @@ def blob(seed: int, radius: float, subdiv: int) -> trimesh.Trimesh:
     rng = np.random.default_rng(seed)
     s = trimesh.creation.icosphere(subdiv)
     u = s.vertices
-    k, phase, amp = rng.normal(size=(3, 3)), rng.uniform(0, 6, size=3), rng.uniform(0.05, 0.2, size=3)
+    k, phase, amp = (
+        rng.normal(size=(3, 3)),
+        rng.uniform(0, 6, size=3),
+        rng.uniform(0.05, 0.2, size=3),
+    )
     bumps = sum(a * np.sin(u @ kk * 2 + p) for a, kk, p in zip(amp, k, phase, strict=True))
     stretch = np.array([1.6, 0.5, 0.8])  # flat and long like a hand
     return trimesh.Trimesh(u * (1 + bumps)[:, None] * stretch * radius, s.faces, process=False)
@@ -87,13 +91,18 @@ def test_bench_iv_voxel(benchmark, pitch, fill):
     pairs = PAIRS if pitch > 0.002 else PAIRS[:3]
     exact = np.array(_run_pairs(intersection_volume, pairs))
     fn = lambda a, b: voxel_iv(a, b, pitch, fill)  # noqa: E731
-    vox = np.array(benchmark.pedantic(_run_pairs, args=(fn, pairs), rounds=3 if pitch > 0.002 else 1))
+    vox = np.array(
+        benchmark.pedantic(_run_pairs, args=(fn, pairs), rounds=3 if pitch > 0.002 else 1)
+    )
     rel = vox / exact - 1.0
     benchmark.extra_info["pairs_per_call"] = len(pairs)
     benchmark.extra_info["rel_err_mean"] = float(np.mean(rel))
     benchmark.extra_info["rel_err_abs_max"] = float(np.abs(rel).max())
     kind = "fill" if fill else "shell"
-    print(f"\nvoxel {kind} {pitch * 1e3:.0f} mm: rel. error mean {rel.mean():+.1%}, |max| {np.abs(rel).max():.1%}")
+    print(
+        f"\nvoxel {kind} {pitch * 1e3:.0f} mm: rel. error mean {rel.mean():+.1%}, "
+        f"|max| {np.abs(rel).max():.1%}"
+    )
 
 
 def fake_bone_hand() -> trimesh.Trimesh:
@@ -101,7 +110,9 @@ def fake_bone_hand() -> trimesh.Trimesh:
     hand = HAND.copy()
     hand.apply_translation([0.0, 0.035, 0.0])  # lying on the torus
     seeds = hand.vertices[np.random.default_rng(4).choice(len(hand.vertices), 16, replace=False)]
-    hand.metadata["bone_ids"] = np.argmin(((hand.vertices[:, None] - seeds[None]) ** 2).sum(-1), axis=1)
+    hand.metadata["bone_ids"] = np.argmin(
+        ((hand.vertices[:, None] - seeds[None]) ** 2).sum(-1), axis=1
+    )
     return hand
 
 
@@ -123,8 +134,11 @@ def test_bench_stability_paper(benchmark):
 def test_bench_stability_hold(benchmark):
     hand, obj = fake_bone_hand(), trimesh.creation.torus(0.04, 0.012)
     pieces = convex_decomposition(obj)
-    res = benchmark.pedantic(_fresh_stability, args=([hand], obj, "hold", None, C.UP, C.DEFAULT_DENSITY, pieces),
-                             rounds=5)
+    res = benchmark.pedantic(
+        _fresh_stability,
+        args=([hand], obj, "hold", None, C.UP, C.DEFAULT_DENSITY, pieces),
+        rounds=5,
+    )
     assert not res.diverged
 
 
@@ -144,7 +158,9 @@ def test_bench_coacd_uncached(benchmark, shape, monkeypatch):
     if shape == "torus":
         mesh = trimesh.creation.torus(0.04, 0.012)
     else:
-        man = (m3.Manifold.sphere(0.05, 64) - m3.Manifold.sphere(0.045, 64)).trim_by_plane([0, -1, 0], 0.0)
+        man = (m3.Manifold.sphere(0.05, 64) - m3.Manifold.sphere(0.045, 64)).trim_by_plane(
+            [0, -1, 0], 0.0
+        )
         m = man.to_mesh64()
         mesh = trimesh.Trimesh(np.asarray(m.vert_properties)[:, :3], np.asarray(m.tri_verts))
 

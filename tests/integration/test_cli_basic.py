@@ -1,4 +1,7 @@
-"""The CLI skeleton: help, version, ls, and the error convention (DESIGN 4.2)."""
+"""The CLI skeleton: help, version, ls, and the error convention.
+
+The convention: docs/contract.md, "Command line".
+"""
 
 import subprocess
 import sys
@@ -7,7 +10,7 @@ import pytest
 
 from grip_bench import __version__
 from grip_bench.cli.main import main
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
 
 
 def run_cli(*args):

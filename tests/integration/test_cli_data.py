@@ -64,7 +64,12 @@ def test_info_on_a_sequence(tmp_path, capsys):
 
 
 def test_info_on_a_dataset(tmp_path, capsys):
-    specs = [("s1", "mug", "lift"), ("s1", "cup", "pass"), ("s2", "mug", "use"), ("s10", "ball", "lift")]
+    specs = [
+        ("s1", "mug", "lift"),
+        ("s1", "cup", "pass"),
+        ("s2", "mug", "use"),
+        ("s10", "ball", "lift"),
+    ]
     write_dataset(tmp_path, specs, T=8, splits={"train": ["cup"], "val": ["ball"], "test": ["mug"]})
     code, out, err = _run(capsys, "data", "info", tmp_path, "--json")
     assert code == 0, err
@@ -86,7 +91,9 @@ def test_info_with_model_path_expands_pca(tmp_path, capsys):
     path = write_npz(tmp_path / "grab" / "s1" / "mug_lift.npz", real_grab_arrays(T=9))
     code, _, err = _run(capsys, "data", "info", path)
     assert code == 1 and "--model-path" in err
-    code, out, err = _run(capsys, "data", "info", path, "--json", "--model-path", tmp_path / "models")
+    code, out, err = _run(
+        capsys, "data", "info", path, "--json", "--model-path", tmp_path / "models"
+    )
     assert code == 0, err
     info = json.loads(out)
     assert info["frames"] == 3 and info["source_fps"] == 120.0 and info["body_model"] == "smplx"
@@ -128,7 +135,11 @@ def _bad_files(tmp_path):
 
     case("hostile", "object", object=_obj({"params": _Evil(tmp_path / "hostile" / "pwned")}))
     case("missing", "contact", contact=None)
-    case("shape", "rhand.params.transl", rhand=with_param("rhand", "transl", np.zeros((8, 2), np.float32)))
+    case(
+        "shape",
+        "rhand.params.transl",
+        rhand=with_param("rhand", "transl", np.zeros((8, 2), np.float32)),
+    )
     case("nan", "lhand.params.global_orient",
          lhand=with_param("lhand", "global_orient", np.full((8, 3), np.nan, np.float32)))
     case("frames", "object.params.global_orient",
@@ -145,7 +156,10 @@ def test_malformed_inputs_give_one_line_errors(tmp_path, capsys):
         before = _snapshot(path.parent)
         code, out, err = _run(capsys, "data", "info", path, "--model-path", tmp_path / "nomodels")
         assert code == 1, name
-        assert out == "" and err.count("\n") == 1 and err.startswith(f"error: {path}: "), (name, err)
+        assert out == "" and err.count("\n") == 1 and err.startswith(f"error: {path}: "), (
+            name,
+            err,
+        )
         if key is not None:
             assert err.startswith(f"error: {path}: {key}: "), (name, err)
         assert "Traceback" not in err

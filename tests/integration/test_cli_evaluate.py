@@ -1,4 +1,4 @@
-"""``grip-bench evaluate``: results files, determinism, and one-line errors on mismatched folders."""
+"""``grip-bench evaluate``: results files, determinism, one-line errors on mismatched folders."""
 
 import json
 import math
@@ -7,9 +7,9 @@ import shutil
 import numpy as np
 import pytest
 
-from grip_bench.bench.results import FRAME_COLUMNS, RESULT_COLUMNS, read_results
 from grip_bench.cli.main import main
 from grip_bench.data.grab_io import read_grab, write_grab
+from grip_bench.results.schema import FRAME_COLUMNS, RESULT_COLUMNS, read_results
 from tests.eval_fixtures import grasp_dataset
 
 FAST = "mpjpe,mpvpe,cc,contact_drift,contact_ratio,pen_depth,jitter,jitter_err"
@@ -32,8 +32,19 @@ def pred(gt, tmp_path):
 
 
 def _evaluate(pred, gt, out, *extra):
-    return main(["evaluate", "--pred", str(pred), "--gt", str(gt), "--out", str(out), "--no-progress",
-                 *extra])
+    return main(
+        [
+            "evaluate",
+            "--pred",
+            str(pred),
+            "--gt",
+            str(gt),
+            "--out",
+            str(out),
+            "--no-progress",
+            *extra,
+        ]
+    )
 
 
 def test_gt_against_itself_writes_tidy_results(gt, pred, tmp_path, capsys):
@@ -47,10 +58,21 @@ def test_gt_against_itself_writes_tidy_results(gt, pred, tmp_path, capsys):
     assert set(df["split"]) == {"test"} and set(df["perturbation"]) == {"none"}
     assert len(df) == 2 * 2 * len(FAST.split(","))
     units = dict(zip(df["metric"], df["unit"], strict=False))
-    assert units == {"mpjpe": "mm", "mpvpe": "mm", "cc": "mm", "contact_drift": "mm",
-                     "contact_ratio": "%", "pen_depth": "mm", "jitter": "m/s2", "jitter_err": "m/s2"}
+    assert units == {
+        "mpjpe": "mm",
+        "mpvpe": "mm",
+        "cc": "mm",
+        "contact_drift": "mm",
+        "contact_ratio": "%",
+        "pen_depth": "mm",
+        "jitter": "m/s2",
+        "jitter_err": "m/s2",
+    }
     zero = df[df["metric"].isin(["mpjpe", "mpvpe", "cc", "contact_drift", "jitter_err"])]
-    assert all(v == 0.0 or (math.isnan(v) and n == 0) for v, n in zip(zero["value"], zero["n_frames"], strict=True))
+    assert all(
+        v == 0.0 or (math.isnan(v) and n == 0)
+        for v, n in zip(zero["value"], zero["n_frames"], strict=True)
+    )
     ratio = df[(df["metric"] == "contact_ratio") & (df["hand"] == "right")]
     assert list(ratio["value"]) == [100.0, 100.0]
     frames = read_results(out / "frames.csv")

@@ -36,12 +36,42 @@ def profile(tmp_path_factory):
 
 def test_train_then_predict(data, profile, tmp_path, capsys):
     ckpt = tmp_path / "grip.pt"
-    assert main(["train", "grip", "--data", str(data), "--out", str(ckpt), "--profile", str(profile),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "grip",
+                "--data",
+                str(data),
+                "--out",
+                str(ckpt),
+                "--profile",
+                str(profile),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert ckpt.is_file()
     out = tmp_path / "pred"
-    assert main(["predict", "--method", "grip-no-rnet", "--checkpoint", str(ckpt), "--input", str(data),
-                 "--split", "test", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                "--method",
+                "grip-no-rnet",
+                "--checkpoint",
+                str(ckpt),
+                "--input",
+                str(data),
+                "--split",
+                "test",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     files = list_sequences(out)
     assert [f.relative_to(out) for f in files] == [f.relative_to(data) for f in list_sequences(data)
                                                   if read_grab(f).obj_name == "bowl"]
@@ -52,13 +82,43 @@ def test_train_then_predict(data, profile, tmp_path, capsys):
     assert manifest["method"] == "grip-no-rnet" and len(manifest["checkpoint_sha256"]) == 64
     # one file, online
     one = tmp_path / "one"
-    assert main(["predict", "--method", "grip", "--checkpoint", str(ckpt), "--input", str(files[0]).replace(
-        str(out), str(data)), "--out", str(one), "--online", "--no-anet"]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                "--method",
+                "grip",
+                "--checkpoint",
+                str(ckpt),
+                "--input",
+                str(files[0]).replace(str(out), str(data)),
+                "--out",
+                str(one),
+                "--online",
+                "--no-anet",
+            ]
+        )
+        == 0
+    )
     assert len(list_sequences(one)) == 1
     # errors: one line, exit 1
     capsys.readouterr()
-    assert main(["predict", "--method", "grip-future5", "--checkpoint", str(ckpt), "--input", str(data),
-                 "--out", str(tmp_path / "x")]) == 1
+    assert (
+        main(
+            [
+                "predict",
+                "--method",
+                "grip-future5",
+                "--checkpoint",
+                str(ckpt),
+                "--input",
+                str(data),
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+        == 1
+    )
     assert "trained for" in capsys.readouterr().err
 
 

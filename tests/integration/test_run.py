@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from grip_bench.bench.tables import TABLES
 from grip_bench.cli.main import main
+from grip_bench.report.tables import TABLES
 
 REPO = Path(__file__).resolve().parents[2]
 METHODS = ["gt", "flat-input", "mean-pose", "perturbed-input"]
@@ -185,7 +185,7 @@ def test_dry_run_lists_the_plan(finished, tiny, capsys):
 def test_grip_variants_train_after_the_first(tmp_path):
     """The first GRIP checkpoint builds the shared features; the others wait for it."""
     from grip_bench.bench.cache import Cache
-    from grip_bench.bench.runner import build_plan, make_config
+    from grip_bench.bench.plan import build_plan, make_config
 
     cfg = make_config("smoke", out=tmp_path)
     ckpts = build_plan(cfg, Cache(tmp_path / "cache")).of("checkpoint")
@@ -198,8 +198,9 @@ def test_grip_variants_train_after_the_first(tmp_path):
 
 def test_slowest_predictions_start_first(tmp_path):
     from grip_bench.bench.cache import Cache
-    from grip_bench.bench.methods import METHODS
-    from grip_bench.bench.runner import _predict_cost, build_plan, make_config
+    from grip_bench.bench.execute import _predict_cost
+    from grip_bench.bench.plan import build_plan, make_config
+    from grip_bench.methods.api import METHODS
 
     cfg = make_config("smoke", out=tmp_path)
     preds = build_plan(cfg, Cache(tmp_path / "cache")).of("prediction")
@@ -236,8 +237,8 @@ def test_report_rerenders_the_same_bytes(finished, tmp_path, capsys):
 def test_figures_are_drawn_from_saved_figure_data(finished):
     import numpy as np
 
-    from grip_bench.bench.runner import read_depth_data
     from grip_bench.report.figures import read_heatmap_data
+    from grip_bench.report.write import read_depth_data
 
     figs = finished / "figures"
     assert sorted(p.name for p in figs.iterdir()) == sorted(FIGURES)  # no iv: not computed
@@ -323,7 +324,7 @@ def test_smoke_profile_end_to_end(tmp_path, capsys):
     About 4 minutes on 2 cores from a cold geometry cache; part of the default run because
     it is the only test that trains every method on generated data end to end.
     """
-    from grip_bench.bench.methods import load_all
+    from grip_bench.methods.api import load_all
 
     out = tmp_path / "smoke"
     assert main(["run", "--profile", "smoke", "--out", str(out), "--quiet"]) == 0
@@ -346,7 +347,7 @@ def test_smoke_profile_end_to_end(tmp_path, capsys):
     for name in ("contact_heatmaps", "penetration_cdf", "per_object_mpvpe", "per_object_iv"):
         assert (out / "figures" / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     board = _csv(out / "leaderboard.csv")
-    from grip_bench.bench.methods import variants
+    from grip_bench.methods.api import variants
 
     assert {r["method"] for r in board} == {r["method"] for r in rows
                                             if r["perturbation"] == "none"} - variants()

@@ -34,7 +34,12 @@ def test_synth_tiny_end_to_end(tmp_path, capsys):
     assert "right-hand contact frequency" in capsys.readouterr().out
     files, manifest = _check_dataset(out, 2)
     out2 = tmp_path / "again"
-    assert main(["data", "synth", "--out", str(out2), "--profile", "tiny", "--workers", "2", "--quiet"]) == 0
+    assert (
+        main(
+            ["data", "synth", "--out", str(out2), "--profile", "tiny", "--workers", "2", "--quiet"]
+        )
+        == 0
+    )
     for f in files:
         a, b = np.load(f, allow_pickle=True), np.load(out2 / f.relative_to(out), allow_pickle=True)
         pa, pb = a["body"].item()["params"], b["body"].item()["params"]

@@ -2,47 +2,56 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from grip_bench.bench.methods import METHOD_MODULES, load_all
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
+from grip_bench.methods.api import METHOD_MODULES, load_all, reference_rows
 
-NAMES = {
-    "grabnet": ("table4_grasp",),
-    "grabnet-smplx": ("table4_grasp",),
-    "manipnet": ("table4_grasp",),
-    "toch": ("table3_perturbation",),
-    "nearest-neighbour": (),
-}
+NAMES = ("grabnet", "grabnet-smplx", "manipnet", "toch", "nearest-neighbour")
+REFERENCE_ROWS = ("gt", "perturbed-input", "flat-input", "mean-pose")
 
 
 @pytest.fixture(autouse=True)
-def _one_thread():
+def _one_thread() -> Iterator[None]:
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
 
 
-@pytest.mark.parametrize("name,tables", NAMES.items())
-def test_methods_are_registered(name, tables):
+@pytest.mark.parametrize("name", NAMES)
+def test_methods_are_registered(name: str) -> None:
     spec = load_all().get(name)
-    assert spec.tables == tables and spec.trainable
+    assert spec.trainable and not spec.reference
+    assert not hasattr(spec, "tables")  # the table TOML files say which tables show a method
+    assert not spec.supports_online  # no baseline streams frame by frame
+    assert spec.version == "1"
     assert spec.description and "\n" not in spec.description
     assert "object" in spec.needs
     assert name in spec.describe()
 
 
-def test_method_modules_listed():
+@pytest.mark.parametrize("name", REFERENCE_ROWS)
+def test_reference_rows_are_marked(name: str) -> None:
+    spec = load_all().get(name)
+    assert not spec.trainable and not spec.supports_online
+    # only the rows that bound the scale are never marked best
+    assert (name in reference_rows()) == (name in ("gt", "perturbed-input")) == spec.reference
+
+
+def test_method_modules_listed() -> None:
     for module in ("grabnet_method", "toch_method", "manipnet_method", "nearest"):
         assert f"grip_baselines.{module}" in METHOD_MODULES
 
 
-def test_needs_match_what_the_methods_read():
+def test_needs_match_what_the_methods_read() -> None:
     methods = load_all()
     assert "noisy_hands" in methods.get("toch").needs
     assert "body" in methods.get("grabnet-smplx").needs
@@ -50,7 +59,7 @@ def test_needs_match_what_the_methods_read():
 
 
 @pytest.mark.parametrize("profile", ["smoke", "default", "paper"])
-def test_profiles_carry_every_train_config_field(profile):
+def test_profiles_carry_every_train_config_field(profile: str) -> None:
     import dataclasses
 
     from grip_baselines.common import section_config
@@ -68,7 +77,7 @@ def test_profiles_carry_every_train_config_field(profile):
         section_config(cls, p, section)
 
 
-def test_default_profile_matches_config_defaults():
+def test_default_profile_matches_config_defaults() -> None:
     import dataclasses
 
     from grip_baselines.grabnet_method import GrabNetTrainConfig
@@ -85,7 +94,7 @@ def test_default_profile_matches_config_defaults():
             assert p[section][f.name] == pytest.approx(getattr(cls(), f.name), rel=1e-3), f.name
 
 
-def test_section_config_rejects_unknown_keys():
+def test_section_config_rejects_unknown_keys() -> None:
     from grip_baselines.common import section_config
     from grip_baselines.grabnet_method import GrabNetTrainConfig
 
@@ -95,7 +104,7 @@ def test_section_config_rejects_unknown_keys():
         section_config(GrabNetTrainConfig, {"grabnet": {"widht": 8}}, "grabnet")
 
 
-def test_mirror_pose_is_the_hand_mirror():
+def test_mirror_pose_is_the_hand_mirror() -> None:
     from grip_baselines.common import mirror_pose
 
     from grip_bench.bodies.hand import ProceduralHand
@@ -107,16 +116,18 @@ def test_mirror_pose_is_the_hand_mirror():
     right, left = ProceduralHand("right"), ProceduralHand("left")
     with torch.no_grad():
         vr = right(None, torch.tensor(pose, dtype=torch.float32).reshape(2, 15, 3), None)[0]
-        vl = left(None, torch.tensor(mirror_pose(pose), dtype=torch.float32).reshape(2, 15, 3), None)[0]
+        vl = left(
+            None, torch.tensor(mirror_pose(pose), dtype=torch.float32).reshape(2, 15, 3), None
+        )[0]
     np.testing.assert_allclose(vl.numpy(), vr.numpy() * [-1, 1, 1], atol=1e-5)
 
 
-def test_bps_codes_agree_with_bps_encode_under_rotation():
+def test_bps_codes_agree_with_bps_encode_under_rotation() -> None:
     from grip_baselines.bps import basis_points, bps_encode, object_centre
     from grip_baselines.grabnet_method import bps_codes
 
     class Lib:
-        def mesh(self, name):
+        def mesh(self, name: str) -> trimesh.Trimesh:
             return box
 
     box = trimesh.creation.box(extents=(0.08, 0.03, 0.05))
@@ -130,7 +141,7 @@ def test_bps_codes_agree_with_bps_encode_under_rotation():
     np.testing.assert_allclose(got, bps_encode(box, basis, rotations=Q), atol=1e-12)
 
 
-def test_windows_of_cuts_runs():
+def test_windows_of_cuts_runs() -> None:
     from grip_baselines.toch_method import windows_of
 
     mask = np.array([0, 1, 1, 1, 1, 1, 0, 0, 1, 1], bool)
@@ -139,7 +150,7 @@ def test_windows_of_cuts_runs():
     assert windows_of(np.zeros(4, bool), 3) == []
 
 
-def test_vertex_subset_and_batches():
+def test_vertex_subset_and_batches() -> None:
     from grip_baselines.common import batches, vertex_subset
 
     class H:
@@ -152,7 +163,7 @@ def test_vertex_subset_and_batches():
     assert min(len(p) for p in parts) >= 2  # never a batch of one (BatchNorm)
 
 
-def test_nearest_index_retrieves_its_own_items():
+def test_nearest_index_retrieves_its_own_items() -> None:
     from grip_baselines.nearest import build_index
 
     rng = np.random.default_rng(0)
@@ -167,7 +178,7 @@ def test_nearest_index_retrieves_its_own_items():
     assert (cfg.n_items, cfg.feat_dim, cfg.n_components) == (40, 12, 12)
 
 
-def test_grabnet_refinenet_noise_leaves_tied_wrist_alone():
+def test_grabnet_refinenet_noise_leaves_tied_wrist_alone() -> None:
     from grip_baselines.grabnet_method import GrabNetTrainConfig, _noisy, pin_wrist, to_grasp
 
     g = to_grasp(np.tile(np.eye(3), (4, 1, 1)), np.zeros((4, 3)), np.zeros((4, 45)))
@@ -183,14 +194,14 @@ def test_grabnet_refinenet_noise_leaves_tied_wrist_alone():
     torch.testing.assert_close(pinned.transl, g.transl)
 
 
-def test_untrained_method_refuses_to_predict():
+def test_untrained_method_refuses_to_predict() -> None:
     methods = load_all()
     for name in NAMES:
         with pytest.raises(InputError, match="load a checkpoint"):
             methods.get(name).build().predict(None, None)
 
 
-def test_manipnet_contact_terms_match_the_numpy_hand_and_field(tmp_path):
+def test_manipnet_contact_terms_match_the_numpy_hand_and_field(tmp_path: Path) -> None:
     """ContactTerms' differentiable distances = the hand posed in numpy and the field's exact
     distances; its penetration term is zero on the ground truth's own (touching) frames."""
     import numpy as np
@@ -222,3 +233,56 @@ def test_manipnet_contact_terms_match_the_numpy_hand_and_field(tmp_path):
         at += len(d.pose)
     prox, pen = terms(pose6, pose6, rows)
     assert prox.item() == 0.0 and pen.item() < 1e-3
+
+
+def test_resolve_device_accepts_the_cpu_and_refuses_unknown_devices() -> None:
+    from grip_baselines.common import resolve_device
+
+    assert resolve_device("cpu") == torch.device("cpu")
+    assert resolve_device(torch.device("cpu")) == torch.device("cpu")
+    assert resolve_device("cpu:0").type == "cpu"
+    for bad in ("gpu", "tpu0", "", "meta"):
+        with pytest.raises(InputError, match="device") as err:
+            resolve_device(bad)
+        assert err.value.where == "--device"
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
+def test_resolve_device_refuses_cuda_without_cuda() -> None:
+    from grip_baselines.common import resolve_device
+
+    for dev in ("cuda", "cuda:0", torch.device("cuda", 1)):
+        with pytest.raises(InputError, match="CUDA is not available"):
+            resolve_device(dev)
+
+
+def test_hand_model_is_cached_per_device() -> None:
+    from grip_baselines.common import SubsetHand, hand_model
+
+    right = hand_model("right")
+    assert hand_model("right", 1.0, "cpu") is right
+    assert hand_model("right", device=torch.device("cpu")) is right
+    sub = SubsetHand(right, [0, 5, 9])
+    assert sub.skin.device == right.weights.device
+
+
+def test_world_to_object_copies_agree_with_the_old_transforms() -> None:
+    """The baselines' world -> object transforms now go through core.frames; they are the
+    column-rotation einsums they replaced (R^T (x - t), R = the transpose of GRAB's)."""
+    from grip_baselines.manipnet import _to_object
+
+    from grip_bench.core.frames import world_to_object
+
+    rng = np.random.default_rng(0)
+    R_row = Rotation.random(5, random_state=3).as_matrix()  # GRAB's row-vector matrices
+    R_col = np.transpose(R_row, (0, 2, 1))
+    t = rng.normal(size=(5, 3))
+    pts = rng.normal(size=(5, 7, 3))
+    old = np.einsum("fji,fvj->fvi", R_col, pts - t[:, None])  # toch / common copies
+    np.testing.assert_allclose(world_to_object(pts, R_row, t), old, rtol=0, atol=1e-15)
+    grid = rng.normal(size=(5, 2, 3, 4, 3))  # manipnet's voxel grids (F, r, r, r, 3)
+    old = np.einsum("f...j,fjk->f...k", grid - t[:, None, None, None], R_col)
+    np.testing.assert_allclose(_to_object(grid, R_col, t), old, rtol=0, atol=1e-15)
+    # and back: world = local @ R_row + t
+    np.testing.assert_allclose(world_to_object(pts, R_row, t) @ R_row + t[:, None], pts,
+                               atol=1e-14)

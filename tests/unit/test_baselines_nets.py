@@ -2,24 +2,30 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pytest
 import torch
 import trimesh
 from grip_baselines import bps, grabnet, manipnet, toch
 
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
+
+if TYPE_CHECKING:
+    from grip_bench.bodies.hand import ProceduralHand
+    from grip_bench.geometry.distance import DistanceField
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # the 2 test cores are shared
 
 
 @pytest.fixture(scope="module")
-def sphere():
+def sphere() -> trimesh.Trimesh:
     return trimesh.creation.icosphere(subdivisions=3, radius=0.05)
 
 
 @pytest.fixture(scope="module")
-def sphere_field(sphere):
+def sphere_field(sphere: trimesh.Trimesh) -> DistanceField:
     from grip_bench.geometry.distance import DistanceField
 
     return DistanceField(sphere)
@@ -32,7 +38,7 @@ def n_params(m: torch.nn.Module) -> int:
 # ----------------------------------------------------------------------------- BPS
 
 
-def closest_on_triangle(p, a, b, c):
+def closest_on_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Exact closest point of triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5)."""
     ab, ac, ap = b - a, c - a, p - a
     d1, d2 = ab @ ap, ac @ ap
@@ -59,7 +65,7 @@ def closest_on_triangle(p, a, b, c):
     return a + ab * (vb * denom) + ac * (vc * denom)
 
 
-def brute_distance(p, mesh):
+def brute_distance(p: np.ndarray, mesh: trimesh.Trimesh) -> tuple[float, np.ndarray | None]:
     best = (np.inf, None)
     for f in mesh.faces:
         q = closest_on_triangle(p, *mesh.vertices[f])
@@ -69,7 +75,7 @@ def brute_distance(p, mesh):
     return best
 
 
-def test_basis_points_deterministic_and_uniform():
+def test_basis_points_deterministic_and_uniform() -> None:
     a = bps.basis_points(4096, 0.15, seed=3)
     assert a.shape == (4096, 3)
     assert np.linalg.norm(a, axis=1).max() <= 0.15
@@ -82,7 +88,7 @@ def test_basis_points_deterministic_and_uniform():
         bps.basis_points(0)
 
 
-def test_bps_matches_brute_force_on_a_small_mesh():
+def test_bps_matches_brute_force_on_a_small_mesh() -> None:
     mesh = trimesh.creation.box(extents=(0.1, 0.04, 0.06))
     mesh.apply_transform(trimesh.transformations.rotation_matrix(0.4, [1, 2, 3]))
     basis = bps.basis_points(40, 0.15, seed=1)
@@ -101,7 +107,7 @@ def test_bps_matches_brute_force_on_a_small_mesh():
     np.testing.assert_allclose(bps.bps_encode(mesh, basis), dist[0], atol=1e-12)
 
 
-def test_bps_many_stacks_objects(sphere):
+def test_bps_many_stacks_objects(sphere: trimesh.Trimesh) -> None:
     basis = bps.basis_points(64)
     box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
     codes = bps.bps_encode_many([sphere, box], basis)
@@ -124,7 +130,7 @@ def random_grasp(b: int, seed: int = 0) -> grabnet.GraspParams:
     )
 
 
-def test_coarsenet_shapes_and_size():
+def test_coarsenet_shapes_and_size() -> None:
     net = grabnet.CoarseNetConfig(**TINY_COARSE).build()
     bps_code = torch.rand(5, 32)
     out = net(bps_code, random_grasp(5))
@@ -139,7 +145,7 @@ def test_coarsenet_shapes_and_size():
         net.encode(torch.rand(5, 31), random_grasp(5))
 
 
-def test_coarsenet_sampling_is_seeded():
+def test_coarsenet_sampling_is_seeded() -> None:
     net = grabnet.CoarseNetConfig(**TINY_COARSE).build().eval()
     code = torch.rand(3, 32)
     with torch.no_grad():
@@ -154,7 +160,7 @@ def test_coarsenet_sampling_is_seeded():
     assert torch.isfinite(a).all()
 
 
-def test_tiny_coarsenet_overfits():
+def test_tiny_coarsenet_overfits() -> None:
     torch.manual_seed(0)
     net = grabnet.CoarseNetConfig(**TINY_COARSE).build()
     code = torch.rand(4, 32)
@@ -173,13 +179,13 @@ def test_tiny_coarsenet_overfits():
     assert (terms["pose"] + terms["transl"]).item() < 0.05 * first
 
 
-def test_refinenet_identity_at_init_and_feedback():
+def test_refinenet_identity_at_init_and_feedback() -> None:
     cfg = grabnet.RefineNetConfig(n_verts=7, width=32, hidden=32)
     net = cfg.build()
     grasp = random_grasp(3)
     seen = []
 
-    def dist_fn(g):
+    def dist_fn(g: grabnet.GraspParams) -> torch.Tensor:
         seen.append(g.transl.clone())
         return g.transl[:, 1:2].expand(-1, 7)
 
@@ -189,7 +195,7 @@ def test_refinenet_identity_at_init_and_feedback():
     assert out.distances[0].shape == (3, 7)
 
 
-def test_refinenet_learns_a_translation_correction():
+def test_refinenet_learns_a_translation_correction() -> None:
     """Distances = height above a plane; the target grasp sits on it. RefineNet must
     learn to remove the height it reads from the distances."""
     torch.manual_seed(0)
@@ -198,10 +204,11 @@ def test_refinenet_learns_a_translation_correction():
     on_plane = torch.tensor([1.0, 0.0, 1.0])
     up = torch.tensor([0.0, 1.0, 0.0])
 
-    def dist_fn(g):
+    def dist_fn(g: grabnet.GraspParams) -> torch.Tensor:
         return g.transl[:, 1:2].expand(-1, 4)
 
-    def grasps(b, seed):  # identity rotations, random positions on the plane y = 0
+    def grasps(b: int, seed: int) -> grabnet.GraspParams:
+        # identity rotations, random positions on the plane y = 0
         g = torch.Generator().manual_seed(seed)
         eye = torch.tensor(grabnet.IDENTITY_6D)
         transl = 0.1 * torch.randn(b, 3, generator=g) * on_plane
@@ -222,13 +229,14 @@ def test_refinenet_learns_a_translation_correction():
         assert refined.transl[:, 1].abs().mean() < 0.2 * 0.02
 
 
-def test_grabnet_losses_terms(hand):
+def test_grabnet_losses_terms(hand: ProceduralHand) -> None:
     hand_fn = grabnet.make_hand_fn(hand)
     eye = torch.tensor(grabnet.IDENTITY_6D)
     target = grabnet.GraspParams(eye.repeat(2, 1), torch.zeros(2, 3), eye.repeat(2, 15, 1))
     shifted = target._replace(transl=torch.tensor([[0.0, 0.01, 0.0]] * 2, requires_grad=True))
 
-    def sdf(points):  # a ball of radius 3 cm around the palm, differentiable
+    def sdf(points: torch.Tensor) -> torch.Tensor:
+        # a ball of radius 3 cm around the palm, differentiable
         return (points - torch.tensor([-0.05, -0.01, 0.0])).norm(dim=-1) - 0.03
 
     cfg = grabnet.GrabNetLossConfig(w_contact=1.0, w_penetration=1.0, w_edge=1.0)
@@ -246,7 +254,9 @@ def test_grabnet_losses_terms(hand):
     assert terms["penetration"] > 0 and terms["contact"] > 0
 
 
-def test_distance_fn_and_differentiable_sdf(hand, sphere_field):
+def test_distance_fn_and_differentiable_sdf(
+    hand: ProceduralHand, sphere_field: DistanceField
+) -> None:
     ids = hand.proximity_ids
     grasp = grabnet.GraspParams(
         torch.tensor([grabnet.IDENTITY_6D]).double(),
@@ -273,7 +283,9 @@ def test_distance_fn_and_differentiable_sdf(hand, sphere_field):
 # ----------------------------------------------------------------------------- TOCH
 
 
-def reference_hits(mesh, origins, dirs, max_dist):
+def reference_hits(
+    mesh: trimesh.Trimesh, origins: np.ndarray, dirs: np.ndarray, max_dist: float
+) -> tuple[np.ndarray, np.ndarray]:
     """trimesh ray casting + containment: the module's rule written the slow way."""
     inside = mesh.contains(origins)
     t = np.full(len(origins), np.nan)
@@ -292,7 +304,7 @@ def reference_hits(mesh, origins, dirs, max_dist):
     return t, face
 
 
-def test_ray_hits_match_trimesh(hand):
+def test_ray_hits_match_trimesh(hand: ProceduralHand) -> None:
     v = hand.template_vertices.double().numpy()
     mesh = trimesh.Trimesh(v, hand.faces, process=False)
     rng = np.random.default_rng(0)
@@ -308,7 +320,9 @@ def test_ray_hits_match_trimesh(hand):
     np.testing.assert_allclose(hit_points[face >= 0], (o + t[:, None] * d)[face >= 0], atol=1e-12)
 
 
-def palm_setup(hand, gap):
+def palm_setup(
+    hand: ProceduralHand, gap: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Flat right hand (palm down, -y) with its chosen palm vertices ``gap`` above y = 0."""
     canon = hand.template_vertices.double().numpy()
     normals = trimesh.Trimesh(canon, hand.faces, process=False).vertex_normals
@@ -321,7 +335,7 @@ def palm_setup(hand, gap):
 
 
 @pytest.mark.parametrize("gap", [0.01, -0.003])
-def test_correspondence_field_palm_over_plane(hand, gap):
+def test_correspondence_field_palm_over_plane(hand: ProceduralHand, gap: float) -> None:
     canon, posed, chosen, lift = palm_setup(hand, gap)
     assert len(chosen) > 10
     under = canon[chosen] * [1.0, 0.0, 1.0]  # on the plate's top face y = 0
@@ -344,7 +358,7 @@ def test_correspondence_field_palm_over_plane(hand, gap):
     assert field.as_array().shape == (len(pts), 5)
 
 
-def test_temporal_ae_shapes_and_loss():
+def test_temporal_ae_shapes_and_loss() -> None:
     torch.manual_seed(0)
     cfg = toch.TemporalAEConfig(local_dim=16, frame_dim=32, gru_hidden=16)
     net = cfg.build()
@@ -366,7 +380,7 @@ def test_temporal_ae_shapes_and_loss():
         net(pts, nrm, field[..., :4])
 
 
-def test_fit_recovers_translation_offset(hand):
+def test_fit_recovers_translation_offset(hand: ProceduralHand) -> None:
     canon, posed, _, lift = palm_setup(hand, 0.01)
     xs, zs = np.meshgrid(np.linspace(-0.08, 0.0, 12), np.linspace(-0.04, 0.03, 10))
     pts = np.stack([xs.ravel(), np.zeros(xs.size), zs.ravel()], 1)
@@ -410,7 +424,9 @@ def rotation(seed: int) -> np.ndarray:
     return Rotation.random(random_state=seed).as_matrix()
 
 
-def test_manipnet_voxels_match_brute_force(hand, sphere, sphere_field):
+def test_manipnet_voxels_match_brute_force(
+    hand: ProceduralHand, sphere: trimesh.Trimesh, sphere_field: DistanceField
+) -> None:
     n = 4
     wrist_rot = np.stack([rotation(s) for s in range(n)])
     wrist_pos = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.03, 0.02, 0.0], [0.05, 0.0, 0.01]])
@@ -444,7 +460,7 @@ def test_manipnet_voxels_match_brute_force(hand, sphere, sphere_field):
     assert 0 < feats.voxels.sum() < feats.voxels.size  # both occupied and free cells
 
 
-def test_manipnet_features_and_forward(hand, sphere_field):
+def test_manipnet_features_and_forward(hand: ProceduralHand, sphere_field: DistanceField) -> None:
     n = 6
     t = np.linspace(0, 1, n)
     wrist_rot = np.stack([rotation(0)] * n)

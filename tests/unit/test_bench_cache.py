@@ -12,7 +12,7 @@ import pytest
 
 from grip_bench.bench import cache as C
 from grip_bench.bench.cache import Cache, unit_key
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
 
 
 def test_keys_are_canonical():
@@ -136,7 +136,7 @@ def test_atomic_write_gives_normal_file_permissions(tmp_path):
     import os
     import stat
 
-    from grip_bench.bench.cache import atomic_write_bytes
+    from grip_bench.core.io import atomic_write_bytes
 
     path = atomic_write_bytes(tmp_path / "a.csv", b"x")
     mask = os.umask(0)

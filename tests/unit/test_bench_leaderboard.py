@@ -6,16 +6,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from grip_bench.bench import results as R
-from grip_bench.bench.leaderboard import (
+from grip_bench.core.errors import InputError
+from grip_bench.report.leaderboard import (
     LEADERBOARD_COLUMNS,
     leaderboard,
     write_leaderboard_csv,
     write_leaderboard_html,
     write_leaderboard_md,
 )
-from grip_bench.bench.results import ResultRow
-from grip_bench.errors import InputError
+from grip_bench.results import schema as R
+from grip_bench.results.schema import ResultRow
 
 from .test_bench_results import synthetic_results
 
@@ -74,7 +74,7 @@ def test_hands_a_method_does_not_predict_are_left_out():
 
 
 def test_registered_single_hand_models():
-    from grip_bench.bench.methods import predicted_hands
+    from grip_bench.methods.api import predicted_hands
 
     hands = predicted_hands()
     assert hands["grabnet"] == ("right",) and hands["manipnet"] == ("right",)

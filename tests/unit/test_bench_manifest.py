@@ -7,14 +7,14 @@ import math
 
 import pytest
 
-from grip_bench.bench.manifest import (
+from grip_bench.core.errors import InputError
+from grip_bench.results.manifest import (
     build_manifest,
     git_info,
     package_versions,
     read_manifest,
     write_manifest,
 )
-from grip_bench.errors import InputError
 
 KEYS = {"schema", "grip_bench_version", "versions", "git", "platform", "cpu_count",
         "python_executable", "profile", "config", "seeds", "data_hash", "stage_times",

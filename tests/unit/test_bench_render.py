@@ -11,10 +11,10 @@ from html.parser import HTMLParser
 import pandas as pd
 import pytest
 
-from grip_bench.bench import results as R
-from grip_bench.bench.results import ResultRow, write_results, write_runtime
-from grip_bench.bench.tables import TABLES, compute_table
 from grip_bench.report.render import FORMATS, render, render_all, render_table
+from grip_bench.report.tables import TABLES, compute_table
+from grip_bench.results import schema as R
+from grip_bench.results.schema import ResultRow, write_results, write_runtime
 
 from .test_bench_results import UNITS, synthetic_results
 
@@ -60,7 +60,7 @@ EXPECTED_FUTURE_MD = """\
 
 - 0 future frames runs in real time; n > 0 adds a latency of n frames (n / 30 s).
 - 10 is the full GRIP model (its default cue), so that row is the grip run itself.
-"""
+"""  # noqa: E501
 
 
 def test_hand_checked_markdown():
@@ -210,7 +210,7 @@ eval(script);
 const order = () => tb.rows.map(r => r.cells[0].textContent).join('');
 handlers[1](); const asc = order(); handlers[1](); const desc = order(); handlers[0]();
 console.log(asc + ' ' + desc + ' ' + order());
-"""
+"""  # noqa: E501
     (tmp_path / "harness.js").write_text(harness)
     out = subprocess.run(["node", str(tmp_path / "harness.js"), str(tmp_path / "sort.js")],
                          capture_output=True, text=True, timeout=60, check=True).stdout

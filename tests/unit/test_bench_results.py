@@ -9,8 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from grip_bench.bench import results as R
-from grip_bench.bench.results import (
+from grip_bench.core.errors import InputError
+from grip_bench.results import schema as R
+from grip_bench.results.schema import (
     FRAME_COLUMNS,
     RESULT_COLUMNS,
     ResultRow,
@@ -19,7 +20,6 @@ from grip_bench.bench.results import (
     write_results,
     write_runtime,
 )
-from grip_bench.errors import InputError
 
 UNITS = {"mpvpe": "mm", "mpjpe": "mm", "cc": "mm", "iv": "cm3", "contact_ratio": "%",
          "sim_stable": "%", "sim_disp": "mm", "sim_disp_hold": "mm"}

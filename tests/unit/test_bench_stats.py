@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from grip_bench.bench import stats
-from grip_bench.bench.stats import bootstrap_ci, bootstrap_means, per_sequence, sequence_ci
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
+from grip_bench.results import stats
+from grip_bench.results.stats import bootstrap_ci, bootstrap_means, per_sequence, sequence_ci
 
 
 def test_constant_sample_has_zero_width_interval():

@@ -6,10 +6,10 @@ import copy
 
 import pytest
 
-from grip_bench.bench.tables import TABLES, load_table, parse_table
 from grip_bench.cli.main import main
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
 from grip_bench.metrics.registry import METRICS
+from grip_bench.report.tables import TABLES, load_table, parse_table
 
 TABLE_IDS = ["table2_ablation", "table3_perturbation", "table4_grasp", "table4_future",
              "physics", "runtime"]
@@ -130,3 +130,35 @@ def test_runtime_columns_need_a_field():
     data["columns"] = [{"field": "flops"}]
     with pytest.raises(InputError, match="'field' must be one of"):
         parse_table(data, "r.toml")
+
+
+def test_ls_methods_lists_the_tables_the_table_files_name(capsys):
+    """The table files are the one home of which tables show a method: ``ls methods``
+    reads them (checked here against a plain walk of the TOML text)."""
+    import tomllib
+    from importlib import resources
+
+    from grip_bench.cli.main import main
+
+    def methods_in(node) -> set[str]:
+        if isinstance(node, dict):
+            found = {node["method"]} if isinstance(node.get("method"), str) else set()
+            return found.union(*(methods_in(v) for v in node.values()))
+        if isinstance(node, list):
+            return set().union(*(methods_in(v) for v in node))
+        return set()
+
+    expected: dict[str, set[str]] = {}
+    for path in resources.files("grip_bench.report.tables").iterdir():
+        if path.name.endswith(".toml"):
+            table = tomllib.loads(path.read_text(encoding="utf-8"))
+            for method in methods_in(table):
+                expected.setdefault(method, set()).add(table["id"])
+    assert main(["ls", "methods"]) == 0
+    listed = {}
+    for line in capsys.readouterr().out.splitlines()[1:]:
+        name, tables = line.split()[0], line.split("tables=")[1].split()[0]
+        listed[name] = set() if tables == "-" else set(tables.split(","))
+    for name, tables in listed.items():
+        assert tables == expected.get(name, set()), name
+    assert expected.keys() <= listed.keys() | {"grip-future10"}

@@ -9,10 +9,10 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from grip_bench import constants
 from grip_bench.bodies.body import ProceduralBody
 from grip_bench.bodies.layouts import SMPLX_INDEX, SMPLX_PARENTS
-from grip_bench.errors import InputError
+from grip_bench.core import constants
+from grip_bench.core.errors import InputError
 from grip_bench.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 D = torch.float64
@@ -99,8 +99,10 @@ def test_height_scaling():
     torch.testing.assert_close(small.template_joints[:25] * (1.9 / 1.5), tall.template_joints[:25])
     # the fingers depend on the hand scale only
     for first, wrist in ((25, 20), (40, 21)):
-        torch.testing.assert_close(small.template_joints[first:first + 15] - small.template_joints[wrist],
-                                   tall.template_joints[first:first + 15] - tall.template_joints[wrist])
+        torch.testing.assert_close(
+            small.template_joints[first : first + 15] - small.template_joints[wrist],
+            tall.template_joints[first : first + 15] - tall.template_joints[wrist],
+        )
     for b in (small, tall):
         rest = b(torch.zeros(1, 3), torch.zeros(1, 63), torch.zeros(1, 3))
         assert b.ground_height(rest).item() == pytest.approx(-b.standing_pelvis_height)
@@ -176,7 +178,9 @@ def solve(body, side, pose, target, rot, swivel=None):
 def test_ik_reaches_target_and_rotation(body, side, dtype):
     pose, target, rot, swivel = ik_case(body, side, seed=5)
     pose = {k: v.to(dtype) for k, v in pose.items()}
-    new_pose, reached, out = solve(body, side, pose, target.to(dtype), rot.to(dtype), swivel.to(dtype))
+    new_pose, reached, out = solve(
+        body, side, pose, target.to(dtype), rot.to(dtype), swivel.to(dtype)
+    )
     assert reached.all() and new_pose.dtype == dtype
     r, p = body.wrist_frame(out, side)
     tol = 1e-5 if dtype == torch.float32 else 1e-9

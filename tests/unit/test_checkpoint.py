@@ -8,8 +8,8 @@ import pytest
 import torch
 
 import grip_bench
-from grip_bench.checkpoint import FORMAT, load_checkpoint, save_checkpoint
-from grip_bench.errors import InputError, UnsafeFileError
+from grip_bench.core.checkpoint import FORMAT, load_checkpoint, save_checkpoint
+from grip_bench.core.errors import InputError, UnsafeFileError
 from grip_bench.grip import ANetConfig, CNetConfig, RNetConfig
 
 TINY = dict(hidden=32, width=16, dropout=0.0)

@@ -7,7 +7,7 @@ import pytest
 import torch
 import trimesh
 
-from grip_bench import constants
+from grip_bench.core import constants
 from grip_bench.geometry.distance import DistanceField
 from grip_bench.geometry.meshes import from_manifold
 
@@ -223,7 +223,9 @@ def test_far_bound_is_a_lower_bound_outside_and_exact_inside(fields):
     bound_far = field.signed_distance(far, far="bound")
     assert np.all(bound_far <= exact_far + 1e-9)  # safe for sphere tracing
     assert np.all(bound_far >= 0.0)  # far points are never reported inside
-    np.testing.assert_array_equal(field.signed_distance(near, far="bound"), field.signed_distance(near))
+    np.testing.assert_array_equal(
+        field.signed_distance(near, far="bound"), field.signed_distance(near)
+    )
     with pytest.raises(ValueError, match="far"):
         field.signed_distance(near, far="nope")
 

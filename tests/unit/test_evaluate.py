@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
+from grip_bench.core.errors import InputError
 from grip_bench.data.grab_io import read_grab
 from grip_bench.data.library import ObjectLibrary
-from grip_bench.errors import InputError
 from grip_bench.metrics import evaluate as E
 from grip_bench.metrics import intersection as I
 from grip_bench.metrics.aggregate import dataset_name, perturbation_name
@@ -34,12 +34,16 @@ def _by(rows):
 def test_ground_truth_against_itself_is_exactly_zero(data):
     lib, seqs = data
     for gt in seqs.values():
-        rows, _ = E.evaluate_sequence(gt, gt.copy(), lib, options=E.EvalOptions(max_physics_frames=2))
+        rows, _ = E.evaluate_sequence(
+            gt, gt.copy(), lib, options=E.EvalOptions(max_physics_frames=2)
+        )
         got = _by(rows)
         for side in ("right", "left"):
             assert got[side, "mpjpe"].value == 0.0 and got[side, "mpvpe"].value == 0.0
             assert got[side, "jitter_err"].value == 0.0
-        right = {m: got["right", m] for m in ("cc", "contact_drift", "contact_ratio", "iv", "sim_stable")}
+        right = {
+            m: got["right", m] for m in ("cc", "contact_drift", "contact_ratio", "iv", "sim_stable")
+        }
         assert right["cc"].value == 0.0 and right["cc"].n_frames > 0
         assert right["contact_drift"].value == 0.0 and right["contact_drift"].n_frames > 0
         assert right["contact_ratio"].value == 100.0
@@ -102,7 +106,9 @@ def test_pushing_the_hand_in_raises_iv_and_penetration(data):
     mesh = lib.mesh(gt.obj_name)
     centre = gt.object_vertices(np.asarray(mesh.bounding_box.centroid)[None])[:, 0]
     wrist = pred.rhand["transl"]
-    pred.rhand["transl"] = wrist + 0.004 * (centre - wrist) / np.linalg.norm(centre - wrist, axis=1, keepdims=True)
+    pred.rhand["transl"] = wrist + 0.004 * (centre - wrist) / np.linalg.norm(
+        centre - wrist, axis=1, keepdims=True
+    )
     got = _by(E.evaluate_sequence(pred, gt, lib, metrics=["iv", "pen_depth"])[0])
     assert got["right", "iv"].value > base["right", "iv"].value
     assert got["right", "pen_depth"].value > base["right", "pen_depth"].value
@@ -150,7 +156,9 @@ def test_warped_hand_manifolds_match_fresh_builds(data):
     for v in local[::3]:
         warped = posed.at(v)
         fresh = I.to_manifold(v, faces, origin)
-        assert (warped ^ obj).volume() == pytest.approx((fresh ^ obj).volume(), rel=1e-12, abs=1e-18)
+        assert (warped ^ obj).volume() == pytest.approx(
+            (fresh ^ obj).volume(), rel=1e-12, abs=1e-18
+        )
     assert posed.perm is not None  # the warp path was really taken
 
 
@@ -183,7 +191,10 @@ def test_labels_from_manifests(tmp_path):
     assert dataset_name(tmp_path, {"generator": "SynthGRAB", "version": "1"}) == "synthgrab"
     assert dataset_name(tmp_path / "mydata", {}) == "mydata"
     assert perturbation_name({"perturbation": "T0.01"}) == "T0.01"
-    assert perturbation_name({"generator": "grip_bench.data.perturb", "kind": "R", "sigma": 0.3}) == "R0.3"
+    assert (
+        perturbation_name({"generator": "grip_bench.data.perturb", "kind": "R", "sigma": 0.3})
+        == "R0.3"
+    )
     assert perturbation_name({}) == "none"
 
 
@@ -200,7 +211,9 @@ def test_contact_stats_pool_to_the_contact_frequency_of_all_grasp_frames(data, t
         plain, plain_frames = E.evaluate_sequence(p, gt, lib, options=FAST, per_frame=True)
         got: dict = {}
         rows, frames = E.evaluate_sequence(p, gt, lib, options=FAST, per_frame=True, stats=got)
-        assert repr((rows, frames)) == repr((plain, plain_frames))  # the rows do not change (NaN-safe)
+        assert repr((rows, frames)) == repr(
+            (plain, plain_frames)
+        )  # the rows do not change (NaN-safe)
         stats.append(got)
         pair = E.SequencePair(p, gt, lib, FAST, I.FailureCounter())
         for side in ("right", "left"):

@@ -15,7 +15,7 @@ import pytest
 import trimesh
 
 from grip_bench.bodies.hand import ProceduralHand
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
 from grip_bench.report import figures as F
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -199,7 +199,7 @@ def test_per_object_bars_renders_deterministically(tmp_path):
 
 
 def test_per_object_stats_match_bootstrap():
-    from grip_bench.bench.stats import bootstrap_ci
+    from grip_bench.results.stats import bootstrap_ci
 
     df = fake_results()
     rows = df[df["hand"] == "right"]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from grip_bench import constants
+from grip_bench.core import constants
 from grip_bench.geometry import cache as GC
 from grip_bench.geometry.distance import DistanceField
 
@@ -62,7 +62,11 @@ def test_keys_depend_on_mesh_bytes_params_and_kind():
 
 # --- storage -------------------------------------------------------------------------------
 def test_roundtrip_is_atomic_and_keeps_dtypes(cache_dir):
-    arrays = {"a": np.arange(5, dtype=np.float32), "b": np.ones((2, 3), bool), "c": np.array(3, np.int64)}
+    arrays = {
+        "a": np.arange(5, dtype=np.float32),
+        "b": np.ones((2, 3), bool),
+        "c": np.array(3, np.int64),
+    }
     calls = []
 
     def build():
@@ -150,10 +154,14 @@ def test_distance_field_is_identical_cached_or_built(cache_dir, monkeypatch):
     rng = np.random.default_rng(0)
     p = rng.uniform(-0.09, 0.09, (4000, 3))
     for far in ("exact", "bound", "coarse"):
-        np.testing.assert_array_equal(built.signed_distance(p, far=far), warm.signed_distance(p, far=far))
+        np.testing.assert_array_equal(
+            built.signed_distance(p, far=far), warm.signed_distance(p, far=far)
+        )
     np.testing.assert_array_equal(built.gradient(p), warm.gradient(p))
     n_tiers = len(built._far_tiers())
-    assert len(_entries(cache_dir, "sdf_far")) == n_tiers  # the lazily built far grids are cached too
+    assert (
+        len(_entries(cache_dir, "sdf_far")) == n_tiers
+    )  # the lazily built far grids are cached too
     for a, b in zip(built._far_tiers(), DistanceField(mesh)._far_tiers(), strict=True):
         np.testing.assert_array_equal(a._vol, b._vol)
 
@@ -230,7 +238,8 @@ def test_convex_pieces_are_identical_cached_or_built(cache_dir, monkeypatch):
 def test_world_to_object_and_to_world_match_einsum():
     from scipy.spatial.transform import Rotation
 
-    from grip_bench.data.library import ObjectLibrary, _rotate_rows
+    from grip_bench.core.frames import rotate_rows as _rotate_rows
+    from grip_bench.data.library import ObjectLibrary
     from grip_bench.sensors import to_world
 
     rng = np.random.default_rng(1)
@@ -273,7 +282,9 @@ def test_outside_and_box_distance_match_the_row_formulas():
     q[:100] = field.origin  # on the grid's faces
     q[100:200] = hi
     q[200:300, 1] = hi[1]
-    np.testing.assert_array_equal(field._outside_grid(q), ((q < field.origin) | (q > hi)).any(axis=1))
+    np.testing.assert_array_equal(
+        field._outside_grid(q), ((q < field.origin) | (q > hi)).any(axis=1)
+    )
     lo, up = field.mesh.bounds
     ref = np.linalg.norm(np.maximum(np.maximum(lo - q, q - up), 0.0), axis=1)
     np.testing.assert_array_equal(field._box_distance(q), ref)
@@ -287,7 +298,9 @@ def test_exact_values_skip_only_signs_that_are_known():
     from grip_bench.geometry.meshes import from_manifold
 
     cyl = manifold3d.Manifold.cylinder
-    mug = from_manifold(cyl(0.10, 0.04, 0.04, 64) - cyl(0.10, 0.036, 0.036, 64).translate((0, 0, 0.004)))
+    mug = from_manifold(
+        cyl(0.10, 0.04, 0.04, 64) - cyl(0.10, 0.036, 0.036, 64).translate((0, 0, 0.004))
+    )
     rng = np.random.default_rng(5)
     for mesh in (mug, _mesh(), trimesh.creation.box((0.05, 0.03, 0.02))):
         field = DistanceField(mesh, spacing=0.005)

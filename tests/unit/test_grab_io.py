@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from grip_bench.core.errors import InputError, MissingModelError, UnsafeFileError
 from grip_bench.data.grab_io import (
     data_root_of,
     dataset_hash,
@@ -18,7 +19,6 @@ from grip_bench.data.grab_io import (
     write_grab,
 )
 from grip_bench.data.sequence import BODY_DIMS, HAND_DIMS
-from grip_bench.errors import InputError, MissingModelError, UnsafeFileError
 from tests.grab_fixtures import (
     FakeMano,
     box_mesh,
@@ -39,8 +39,21 @@ def _assert_same(a, b):
     assert a.contact.keys() == b.contact.keys()
     for k in a.contact:
         assert np.array_equal(a.contact[k], b.contact[k])
-    for f in ("sbj_id", "gender", "obj_name", "motion_intent", "fps", "body_model", "height",
-              "hand_scale", "object_mesh", "table_mesh", "body_vtemp", "rhand_vtemp", "lhand_vtemp"):
+    for f in (
+        "sbj_id",
+        "gender",
+        "obj_name",
+        "motion_intent",
+        "fps",
+        "body_model",
+        "height",
+        "hand_scale",
+        "object_mesh",
+        "table_mesh",
+        "body_vtemp",
+        "rhand_vtemp",
+        "lhand_vtemp",
+    ):
         assert getattr(a, f) == getattr(b, f), f
 
 
@@ -108,15 +121,18 @@ def test_real_grab_file_is_subsampled_and_expanded(tmp_path):
     assert seq.body_model == "smplx"  # no body_model key: a real GRAB file
     rh = raw["rhand"].item()["params"]
     np.testing.assert_array_equal(seq.rhand["transl"], rh["transl"][::4])
-    np.testing.assert_allclose(seq.rhand["hand_pose"], mano.expand_pca("right", rh["hand_pose"][::4]),
-                               rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        seq.rhand["hand_pose"], mano.expand_pca("right", rh["hand_pose"][::4]), rtol=1e-5, atol=1e-6
+    )
     np.testing.assert_allclose(seq.rhand["fullpose"][:, :3], rh["global_orient"][::4])
     np.testing.assert_allclose(seq.rhand["fullpose"][:, 3:], seq.rhand["hand_pose"])
     # GRAB's SMPL-X body hand poses are offsets from the mean hand (smplx default)
     lh_body = raw["body"].item()["params"]["left_hand_pose"][::4]
     np.testing.assert_allclose(seq.body["left_hand_pose"],
                                mano.expand_pca("left", lh_body) + mano.mean["left"], atol=1e-6)
-    np.testing.assert_array_equal(seq.body["fullpose"], raw["body"].item()["params"]["fullpose"][::4])
+    np.testing.assert_array_equal(
+        seq.body["fullpose"], raw["body"].item()["params"]["fullpose"][::4]
+    )
     np.testing.assert_array_equal(seq.contact["object"], raw["contact"].item()["object"][::4])
     assert seq.rhand_vtemp == "tools/subject_meshes/male/s1_rhand.ply"
     hdr = read_grab_header(path)
@@ -142,7 +158,9 @@ def test_written_files_are_marked_flat(tmp_path):
     data = np.load(path, allow_pickle=True)
     assert all(data[p].item()["flat_hand_mean"] is True for p in ("body", "rhand", "lhand"))
     back = read_grab(path, flat_hand_mean=False)  # the marker wins over the override
-    np.testing.assert_array_equal(back.body["left_hand_pose"], make_sequence(T=3).body["left_hand_pose"])
+    np.testing.assert_array_equal(
+        back.body["left_hand_pose"], make_sequence(T=3).body["left_hand_pose"]
+    )
 
 
 def test_pca_without_backend_is_a_clear_error(tmp_path):
@@ -160,7 +178,9 @@ def test_full_pose_real_file(tmp_path):
     assert e.value.where == f"{path}: body.params.right_hand_pose"
     seq = read_grab(path, flat_hand_mean=True)
     assert seq.n_frames == 8
-    np.testing.assert_array_equal(seq.rhand["hand_pose"], raw["rhand"].item()["params"]["hand_pose"])
+    np.testing.assert_array_equal(
+        seq.rhand["hand_pose"], raw["rhand"].item()["params"]["hand_pose"]
+    )
 
 
 def test_bad_frame_rate(tmp_path):
@@ -234,18 +254,49 @@ def _with_param(path, part, key, value):
     return _rewrite(path, **{part: a})
 
 
-@pytest.mark.parametrize("make_bad, key, message", [
-    (lambda p: _rewrite(p, contact=None), "contact", "missing key"),
-    (lambda p: _rewrite(p, n_frames=np.array("ten")), "n_frames", "number"),
-    (lambda p: _rewrite(p, body=np.array([1.0, 2.0])), "body", "dict"),
-    (lambda p: _with_param(p, "body", "body_pose", None), "body.params.body_pose", "missing key"),
-    (lambda p: _with_param(p, "rhand", "transl", np.zeros((6, 2), np.float32)), "rhand.params.transl", r"\(n_frames=6, 3\)"),
-    (lambda p: _with_param(p, "rhand", "transl", np.zeros((5, 3), np.float32)), "rhand.params.transl", "n_frames=6"),
-    (lambda p: _with_param(p, "lhand", "hand_pose", np.full((6, 45), np.nan, np.float32)), "lhand.params.hand_pose", "non-finite"),
-    (lambda p: _with_param(p, "rhand", "hand_pose", np.zeros((6, 30), np.float32)), "rhand.params.hand_pose", r"\(6, 30\) should be \(n_frames=6, 45\)"),
-    (lambda p: _with_param(p, "object", "transl", np.full((6, 3), 400.0, np.float32)), "object.params.transl", "millimetres"),
-    (lambda p: _with_param(p, "object", "transl", np.array(["a"] * 18).reshape(6, 3)), "object.params.transl", "numeric"),
-])
+@pytest.mark.parametrize(
+    "make_bad, key, message",
+    [
+        (lambda p: _rewrite(p, contact=None), "contact", "missing key"),
+        (lambda p: _rewrite(p, n_frames=np.array("ten")), "n_frames", "number"),
+        (lambda p: _rewrite(p, body=np.array([1.0, 2.0])), "body", "dict"),
+        (
+            lambda p: _with_param(p, "body", "body_pose", None),
+            "body.params.body_pose",
+            "missing key",
+        ),
+        (
+            lambda p: _with_param(p, "rhand", "transl", np.zeros((6, 2), np.float32)),
+            "rhand.params.transl",
+            r"\(n_frames=6, 3\)",
+        ),
+        (
+            lambda p: _with_param(p, "rhand", "transl", np.zeros((5, 3), np.float32)),
+            "rhand.params.transl",
+            "n_frames=6",
+        ),
+        (
+            lambda p: _with_param(p, "lhand", "hand_pose", np.full((6, 45), np.nan, np.float32)),
+            "lhand.params.hand_pose",
+            "non-finite",
+        ),
+        (
+            lambda p: _with_param(p, "rhand", "hand_pose", np.zeros((6, 30), np.float32)),
+            "rhand.params.hand_pose",
+            r"\(6, 30\) should be \(n_frames=6, 45\)",
+        ),
+        (
+            lambda p: _with_param(p, "object", "transl", np.full((6, 3), 400.0, np.float32)),
+            "object.params.transl",
+            "millimetres",
+        ),
+        (
+            lambda p: _with_param(p, "object", "transl", np.array(["a"] * 18).reshape(6, 3)),
+            "object.params.transl",
+            "numeric",
+        ),
+    ],
+)
 def test_malformed_files_name_file_and_key(tmp_path, make_bad, key, message):
     path = write_grab(make_sequence(T=6), tmp_path / "m.npz")
     make_bad(path)
@@ -255,16 +306,26 @@ def test_malformed_files_name_file_and_key(tmp_path, make_bad, key, message):
 
 
 def test_list_sequences_and_paths(tmp_path):
-    specs = [("s10", "mug", "lift"), ("s2", "apple", "pass"), ("s2", "camera", "use"), ("s1", "mug", "use")]
+    specs = [
+        ("s10", "mug", "lift"),
+        ("s2", "apple", "pass"),
+        ("s2", "camera", "use"),
+        ("s1", "mug", "use"),
+    ]
     write_dataset(tmp_path, specs, T=5)
     (tmp_path / "grab" / "s1" / "notes.txt").write_text("x")
     names = [p.relative_to(tmp_path / "grab").as_posix() for p in list_sequences(tmp_path)]
     assert names == ["s1/mug_use_1.npz", "s2/apple_pass_1.npz", "s2/camera_use_1.npz",
                      "s10/mug_lift_1.npz"]
-    assert object_mesh_path(tmp_path, "mug") == tmp_path / "tools/object_meshes/contact_meshes/mug.ply"
+    assert (
+        object_mesh_path(tmp_path, "mug") == tmp_path / "tools/object_meshes/contact_meshes/mug.ply"
+    )
     seq = read_grab(list_sequences(tmp_path)[0])
     assert data_root_of(seq.source) == tmp_path.resolve()
-    assert resolve_object_mesh(seq) == (tmp_path / "tools/object_meshes/contact_meshes/mug.ply").resolve()
+    assert (
+        resolve_object_mesh(seq)
+        == (tmp_path / "tools/object_meshes/contact_meshes/mug.ply").resolve()
+    )
     with pytest.raises(InputError, match="grab/"):
         list_sequences(tmp_path / "grab")
 

@@ -9,6 +9,7 @@ import trimesh
 from grip_baselines import grabnet
 from grip_baselines.grabnet_method import DistanceFeed, field_distance_and_gradient
 
+from grip_bench.bodies.hand import ProceduralHand
 from grip_bench.geometry.distance import DistanceField
 
 RADIUS = 0.04
@@ -20,29 +21,27 @@ pytestmark = pytest.mark.usefixtures("one_thread")  # the 2 test cores are share
 class _Library:
     """The two things DistanceFeed reads of an ObjectLibrary, for one sphere."""
 
-    def __init__(self, mesh):
+    def __init__(self, mesh: trimesh.Trimesh) -> None:
         self._mesh, self._field = mesh, DistanceField(mesh)
 
-    def field(self, name):
+    def field(self, name: str) -> DistanceField:
         return self._field
 
-    def mesh(self, name):
+    def mesh(self, name: str) -> trimesh.Trimesh:
         return self._mesh
 
 
 @pytest.fixture(scope="module")
-def hand():
-    from grip_bench.bodies import ProceduralHand
-
+def hand() -> ProceduralHand:
     return ProceduralHand("right")
 
 
 @pytest.fixture(scope="module")
-def ball():
+def ball() -> trimesh.Trimesh:
     return trimesh.creation.icosphere(subdivisions=4, radius=RADIUS)
 
 
-def flat_grasp(transl) -> grabnet.GraspParams:
+def flat_grasp(transl: np.ndarray) -> grabnet.GraspParams:
     """Flat right hands (identity wrist) at wrist positions ``transl (B, 3)``, float64."""
     transl = torch.as_tensor(np.asarray(transl, float))
     b = len(transl)
@@ -50,14 +49,16 @@ def flat_grasp(transl) -> grabnet.GraspParams:
     return grabnet.GraspParams(eye.repeat(b, 1), transl, eye.repeat(b, 15, 1))
 
 
-def naive_penetration(mesh, vertices: np.ndarray) -> float:
+def naive_penetration(mesh: trimesh.Trimesh, vertices: np.ndarray) -> float:
     """Mean depth of the vertices inside ``mesh``: trimesh's exact signed distance
     (positive inside), per vertex, the slow way."""
     depth = np.stack([trimesh.proximity.signed_distance(mesh, v) for v in vertices])
     return float(np.maximum(depth, 0.0).mean())
 
 
-def test_penetration_loss_zero_outside_and_positive_inside(hand, ball):
+def test_penetration_loss_zero_outside_and_positive_inside(
+    hand: ProceduralHand, ball: trimesh.Trimesh
+) -> None:
     """Penetration loss through the training pipeline's distance feed (object library
     field, model -> object frame map), against a naive per-vertex computation."""
     ids = np.arange(0, hand.num_vertices, 7)
@@ -93,14 +94,14 @@ def test_penetration_loss_zero_outside_and_positive_inside(hand, ball):
     assert grabnet.penetration_loss(one.sdf(moved)).item() < pen[1]
 
 
-def test_contact_loss_reads_gt_contact_vertices_only():
+def test_contact_loss_reads_gt_contact_vertices_only() -> None:
     d = torch.tensor([[0.01, -0.002, 0.3], [0.0, 0.5, 0.02]])
     contact = torch.tensor([[True, True, False], [False, False, True]])
     assert grabnet.contact_loss(d, contact).item() == pytest.approx((0.01 + 0.002 + 0.02) / 3)
     assert grabnet.contact_loss(d, torch.zeros_like(contact)).item() == 0.0
 
 
-def test_field_gradient_near_and_far(ball):
+def test_field_gradient_near_and_far(ball: trimesh.Trimesh) -> None:
     field = DistanceField(ball)
     rng = np.random.default_rng(0)
     dirs = rng.normal(size=(200, 3))

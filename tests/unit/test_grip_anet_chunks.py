@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from grip_bench import constants as C
+from grip_bench.core import constants as C
 from grip_bench.grip import ANetConfig
 from grip_bench.grip import pipeline as P
 

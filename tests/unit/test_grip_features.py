@@ -28,7 +28,9 @@ def _direct(root, split: str, voxel: bool, seed: int = 0) -> dict:
     per_seq = []
     for f in split_files(root, split):
         seq = read_grab(f)
-        per_seq.append(sequence_features(library, seq, voxel=voxel, rng=sequence_rng(seed, seq.name)))
+        per_seq.append(
+            sequence_features(library, seq, voxel=voxel, rng=sequence_rng(seed, seq.name))
+        )
     return {k: np.concatenate([s[k] for s in per_seq]) for k in per_seq[0]}
 
 

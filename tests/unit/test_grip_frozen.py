@@ -3,10 +3,10 @@
 import pytest
 import torch
 
-from grip_bench.constants import GRIP_LEAKY_SLOPE
+from grip_bench.core.constants import GRIP_LEAKY_SLOPE
 from grip_bench.grip import ANetConfig, CNetConfig, RNetConfig
-from grip_bench.grip.blocks import ResMLP
 from grip_bench.grip.frozen import FrozenMLP, freeze, frozen
+from grip_bench.nn.blocks import ResMLP
 
 
 def _trained_stats(net: torch.nn.Module, seed: int = 0) -> torch.nn.Module:
@@ -62,18 +62,31 @@ def test_frozen_mlp_equals_the_layer_by_layer_reference(d_in, width, input_norm)
 def test_freeze_keeps_each_network_interface_and_values():
     torch.manual_seed(0)
     small = dict(hidden=32, width=16, latent=8)
-    cnet = _trained_stats(CNetConfig(ambient_dim=6, proximity_dim=5, future_dim=4, body_dim=9, **small).build())
+    cnet = _trained_stats(
+        CNetConfig(ambient_dim=6, proximity_dim=5, future_dim=4, body_dim=9, **small).build()
+    )
     anet = _trained_stats(ANetConfig(n_enc_blocks=2, n_dec_blocks=2, **small).build())
-    rnet = _trained_stats(RNetConfig(proximity_dim=5, hidden=32, width=16, zero_init_head=False).build())
-    body, amb, prox, fut = torch.randn(3, 2, 9), torch.rand(3, 2, 2, 6), torch.rand(3, 2, 2, 5), torch.randn(3, 4)
+    rnet = _trained_stats(
+        RNetConfig(proximity_dim=5, hidden=32, width=16, zero_init_head=False).build()
+    )
+    body, amb, prox, fut = (
+        torch.randn(3, 2, 9),
+        torch.rand(3, 2, 2, 6),
+        torch.rand(3, 2, 2, 5),
+        torch.randn(3, 4),
+    )
     with torch.no_grad():
         a, b = cnet(body, amb, prox, fut), freeze(cnet)(body, amb, prox, fut)
         torch.testing.assert_close(a.poses_t, b.poses_t, atol=1e-5, rtol=1e-4)
         torch.testing.assert_close(a.poses_t1, b.poses_t1, atol=1e-5, rtol=1e-4)
         z = freeze(cnet).encode(body, amb, prox, fut).z  # decode only the latents one keeps
-        torch.testing.assert_close(freeze(cnet).decode(z[:, 1])[0], a.poses_t1, atol=1e-5, rtol=1e-4)
+        torch.testing.assert_close(
+            freeze(cnet).decode(z[:, 1])[0], a.poses_t1, atol=1e-5, rtol=1e-4
+        )
         cur, nf = torch.randn(3, 4, 6), torch.randn(3, 5, 4, 6)
-        torch.testing.assert_close(anet(cur, nf).arms, freeze(anet)(cur, nf).arms, atol=1e-5, rtol=1e-4)
+        torch.testing.assert_close(
+            anet(cur, nf).arms, freeze(anet)(cur, nf).arms, atol=1e-5, rtol=1e-4
+        )
         poses, p = torch.randn(3, 2, 15, 6), torch.rand(3, 2, 5)
         mask = torch.tensor([True, False, True])
         out = freeze(rnet)(poses, p, mask=mask)

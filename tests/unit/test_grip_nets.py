@@ -6,10 +6,11 @@ import pytest
 import torch
 from torch import nn
 
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
 from grip_bench.grip import ANetConfig, CNetConfig, RNetConfig
 from grip_bench.grip import losses as L
 from grip_bench.grip.flops import macs_per_frame, pipeline_flops_per_frame, runtime_floor
+from grip_bench.nn.terms import proximity_l1
 
 B = 4
 TINY = dict(hidden=32, width=16, latent=8, dropout=0.0)
@@ -290,7 +291,7 @@ def test_losses_values_and_gradients():
     assert L.pose_l2(scaled, gt) > 0
     assert L.pose_l2(scaled, gt, space="matrix") < 1e-10
     torch.testing.assert_close(
-        L.proximity_l1(torch.ones(3, 2, 99), torch.zeros(3, 2, 99)), torch.tensor(1.0)
+        proximity_l1(torch.ones(3, 2, 99), torch.zeros(3, 2, 99)), torch.tensor(1.0)
     )
     still = torch.zeros(B, 6)
     assert L.output_consistency(still, still + 1, still, still + 1) == 0

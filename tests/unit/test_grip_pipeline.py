@@ -1,16 +1,16 @@
-"""GRIP's data, training (determinism, resume), pipeline (offline / online / refine) and variants."""
+"""GRIP's data, training (determinism, resume), pipeline (offline, online, refine), variants."""
 
 import numpy as np
 import pytest
 import torch
 
-from grip_bench.bench.methods import METHODS, PredictContext, load_all
+from grip_bench.core.errors import InputError
 from grip_bench.data.grab_io import list_sequences, read_grab, write_grab
 from grip_bench.data.library import ObjectLibrary
-from grip_bench.errors import InputError
 from grip_bench.grip import train as TR
 from grip_bench.grip.data import build_split
 from grip_bench.grip.method import VARIANTS, GripMethod
+from grip_bench.methods.api import METHODS, PredictContext, TrainContext, load_all
 from grip_bench.profiles import load_profile, validate_profile
 from tests.grip_fixtures import tiny_profile, write_grip_dataset
 
@@ -29,7 +29,7 @@ def root(tmp_path_factory):
 def trained(root, tmp_path_factory):
     out = tmp_path_factory.mktemp("ckpt") / "grip.pt"
     torch.set_num_threads(1)
-    return GripMethod().train(root, out, profile=tiny_profile(), progress=False)
+    return GripMethod().train(root, out, TrainContext(profile=tiny_profile(), progress=False))
 
 
 def _weights(path):
@@ -55,24 +55,30 @@ def test_training_reduces_loss_and_is_deterministic(root, trained, tmp_path):
     curve = meta["curves"]["cnet"]["train"]
     assert curve[-1] < curve[0]
     assert meta["train_key"] == TR.Variant().train_key() and len(meta["data_hash"]) == 64
-    again = GripMethod().train(root, tmp_path / "again.pt", profile=tiny_profile(), progress=False)
+    again = GripMethod().train(
+        root, tmp_path / "again.pt", TrainContext(profile=tiny_profile(), progress=False)
+    )
     a, b = _weights(trained), _weights(again)
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
 
 
 def test_variants_share_anet_through_the_feature_cache(root, tmp_path, monkeypatch):
     """A variant's ANet, loaded from the first training's cache, equals one trained afresh."""
-    monkeypatch.setenv(TR.FEATURE_CACHE_ENV, str(tmp_path / "shared"))
-    first = GripMethod().train(root, tmp_path / "grip.pt", profile=tiny_profile(), progress=False)
+    shared_ctx = TrainContext(profile=tiny_profile(), progress=False,
+                              feature_cache=tmp_path / "shared")
+    first = GripMethod().train(root, tmp_path / "grip.pt", shared_ctx)
     assert len(list((tmp_path / "shared").glob("anet-*.pt"))) == 1
     calls = []
     real_fit = TR.fit
-    monkeypatch.setattr(TR, "fit", lambda stage, *a: calls.append(stage.name) or real_fit(stage, *a))
+    monkeypatch.setattr(
+        TR, "fit", lambda stage, *a: calls.append(stage.name) or real_fit(stage, *a)
+    )
     variant = GripMethod("grip-no-consist", consistency="none")
-    shared = variant.train(root, tmp_path / "nc.pt", profile=tiny_profile(), progress=False)
+    shared = variant.train(root, tmp_path / "nc.pt", shared_ctx)
     assert calls == ["cnet", "rnet"]  # ANet came from the cache
-    monkeypatch.setenv(TR.FEATURE_CACHE_ENV, str(tmp_path / "alone"))
-    alone = variant.train(root, tmp_path / "nc-alone.pt", profile=tiny_profile(), progress=False)
+    alone = variant.train(root, tmp_path / "nc-alone.pt",
+                          TrainContext(profile=tiny_profile(), progress=False,
+                                       feature_cache=tmp_path / "alone"))
     a, b, c = _weights(first), _weights(shared), _weights(alone)
     assert all(torch.equal(b[k], c[k]) for k in b)  # sharing changes nothing
     anet = [k for k in a if k.startswith("anet.")]
@@ -96,10 +102,10 @@ def test_resume_continues_an_interrupted_training(root, trained, tmp_path, monke
 
     monkeypatch.setattr(TR, "fit", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        GripMethod().train(root, out, profile=tiny_profile(), progress=False)
+        GripMethod().train(root, out, TrainContext(profile=tiny_profile(), progress=False))
     assert (tmp_path / "resumed.pt.partial").is_file() and not out.exists()
     monkeypatch.setattr(TR, "fit", real_fit)
-    GripMethod().train(root, out, profile=tiny_profile(), progress=False)
+    GripMethod().train(root, out, TrainContext(profile=tiny_profile(), progress=False))
     assert not (tmp_path / "resumed.pt.partial").exists()
     a, b = _weights(trained), _weights(out)
     assert all(torch.equal(a[k], b[k]) for k in a)
@@ -114,7 +120,9 @@ def test_predict_writes_a_valid_grab_file(root, trained, tmp_path):
     on = m.predict(seq, PredictContext(library=lib, online=True))
     for pred in (off, on):
         assert pred.rhand["hand_pose"].shape == seq.rhand["hand_pose"].shape
-        assert np.isfinite(pred.rhand["hand_pose"]).all() and np.isfinite(pred.lhand["transl"]).all()
+        assert (
+            np.isfinite(pred.rhand["hand_pose"]).all() and np.isfinite(pred.lhand["transl"]).all()
+        )
         np.testing.assert_array_equal(pred.body["right_hand_pose"], pred.rhand["hand_pose"])
     back = read_grab(write_grab(off, tmp_path / "grab" / "s1" / "x.npz"))
     np.testing.assert_allclose(back.rhand["hand_pose"], off.rhand["hand_pose"])
@@ -147,7 +155,9 @@ def test_run_many_batches_anet_across_sequences_without_changing_results(root, t
         assert got.n_frames == seq.n_frames
         for part in ("rhand", "lhand"):
             for key in ("hand_pose", "global_orient", "transl"):
-                np.testing.assert_allclose(getattr(got, part)[key], getattr(one, part)[key], atol=1e-5)
+                np.testing.assert_allclose(
+                    getattr(got, part)[key], getattr(one, part)[key], atol=1e-5
+                )
 
 
 @torch.no_grad()
@@ -164,13 +174,18 @@ def _naive_hands(nets, variant, seq, lib):
     arms, T = noisy.copy(), seq.n_frames
     for t in range(T - 1):
         fut = np.minimum(np.arange(t + 1, t + 6), T - 1)
-        arms[t + 1] = noisy[t + 1] + nets["anet"](t_(arms[t][None]), t_(noisy[fut][None])).arms[0, 1].numpy()
+        arms[t + 1] = (
+            noisy[t + 1] + nets["anet"](t_(arms[t][None]), t_(noisy[fut][None])).arms[0, 1].numpy()
+        )
     pose0 = np.asarray(seq.body["body_pose"], np.float64)
     body_pose = set_arms(pose0, arms)
     wrists = moved_wrists(seq, pose0, body_pose, {s: wrist_frames(seq, s) for s in NET_SIDES})
     one = stage_one(lib, seq, wrists, variant.ambient)
     amb, prox = sensor_inputs(one.ambient, one.proximity, variant)
-    body, cue = body_context(seq, wrists, body_pose), future_cue(one.mean_dist, variant.future_frames)
+    body, cue = (
+        body_context(seq, wrists, body_pose),
+        future_cue(one.mean_dist, variant.future_frames),
+    )
     poses = np.zeros((T, 2, 15, 6), np.float32)
     for t in range(T - 1):
         p = [t, t + 1]
@@ -207,10 +222,12 @@ def test_no_anet_keeps_wrists_and_refine_keeps_far_fingers_close(root, trained):
     m.load(trained)
     seq = read_grab(list_sequences(root)[0])
     lib = ObjectLibrary(root)
-    pred = m.predict(seq, PredictContext(library=lib, extra={"no_anet": True}))
+    pred = m.predict(seq, PredictContext(library=lib, use_anet=False))
     np.testing.assert_array_equal(pred.rhand["transl"], seq.rhand["transl"])
-    ref = m.predict(seq, PredictContext(library=lib, extra={"refine": True}))
-    assert np.abs(ref.rhand["hand_pose"] - seq.rhand["hand_pose"]).max() < 1.0  # refined, not replaced
+    ref = m.predict(seq, PredictContext(library=lib, refine=True))
+    assert (
+        np.abs(ref.rhand["hand_pose"] - seq.rhand["hand_pose"]).max() < 1.0
+    )  # refined, not replaced
     with pytest.raises(InputError, match="future"):
         m.predict(seq, PredictContext(library=lib, future_frames=3))
 
@@ -228,8 +245,13 @@ def test_every_variant_builds_from_its_switch():
     shared = keys[GripMethod().train_key()]
     assert sorted(shared) == ["grip", "grip-future10", "grip-no-rnet"]
     assert len(keys) == len(VARIANTS) - 2
-    assert TR.build_configs(hp, METHODS.get("grip-voxel-ambient").build().variant)["cnet"].ambient_dim == 1014
-    assert TR.build_configs(hp, METHODS.get("grip-future3").build().variant)["cnet"].future_dim == 12
+    assert (
+        TR.build_configs(hp, METHODS.get("grip-voxel-ambient").build().variant)["cnet"].ambient_dim
+        == 1014
+    )
+    assert (
+        TR.build_configs(hp, METHODS.get("grip-future3").build().variant)["cnet"].future_dim == 12
+    )
 
 
 def test_mismatched_checkpoint_is_refused(trained):

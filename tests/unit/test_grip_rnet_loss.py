@@ -9,7 +9,7 @@ from grip_bench.data.library import ObjectLibrary
 from grip_bench.geometry.distance import DistanceField
 from grip_bench.grip import train as TR
 from grip_bench.grip.data import build_split, hand_model
-from grip_bench.grip.losses import penetration_depth
+from grip_bench.nn.terms import penetration_depth
 from tests.grip_fixtures import write_grip_dataset
 
 
@@ -65,7 +65,9 @@ def test_hand_object_distance_matches_a_numpy_reference(frames):
     for n, f in enumerate(idx):  # naive: one frame, one hand at a time, exact distances
         name = str(fs.objects[fs.seq_id[f]])
         rot = torch.as_tensor(TR.rotation_6d_to_matrix(torch.as_tensor(fs.gt_poses[f][None])))
-        local = hand_model(float(fs.hand_scale[f])).vertices(rot.float(), dist.ids)[0].double().numpy()
+        local = (
+            hand_model(float(fs.hand_scale[f])).vertices(rot.float(), dist.ids)[0].double().numpy()
+        )
         for h in range(2):
             world = local[h] @ fs.wrist_rot[f, h].T.astype(float) + fs.wrist_transl[f, h]
             obj = (world - fs.obj_transl[f]) @ fs.obj_rot[f].T.astype(float)

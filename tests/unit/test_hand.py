@@ -8,10 +8,11 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from grip_bench import constants
 from grip_bench.bodies import layouts
-from grip_bench.bodies.hand import ProceduralHand, mirror_axis_angle, mirror_points
-from grip_bench.errors import InputError
+from grip_bench.bodies.hand import ProceduralHand
+from grip_bench.core import constants
+from grip_bench.core.errors import InputError
+from grip_bench.core.frames import mirror_axis_angle, mirror_points
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +53,9 @@ def test_template_dimensions_and_scale():
         # hand breadth across the knuckles (Garrett 1971: ~0.44 x hand length)
         knuckles = v[np.abs(v[:, 0] + 0.40 * constants.HAND_LENGTH * scale) < 0.005 * scale]
         knuckles = knuckles[knuckles[:, 1] > -0.01 * scale]  # dorsal half: leaves out the thumb
-        assert np.ptp(knuckles[:, 2]) == pytest.approx(0.44 * constants.HAND_LENGTH * scale, rel=0.12)
+        assert np.ptp(knuckles[:, 2]) == pytest.approx(
+            0.44 * constants.HAND_LENGTH * scale, rel=0.12
+        )
 
 
 def test_template_frame_conventions(right):
@@ -73,7 +76,9 @@ def test_layout_and_labels(right):
     assert right.joint_names == layouts.MANO_JOINTS
     assert right.keypoint_names == layouts.HAND_KEYPOINTS
     assert right.weights.shape == (right.num_vertices, 16)
-    torch.testing.assert_close(right.weights.sum(1), torch.ones(right.num_vertices, dtype=torch.float64))
+    torch.testing.assert_close(
+        right.weights.sum(1), torch.ones(right.num_vertices, dtype=torch.float64)
+    )
     assert (right.weights >= 0).all()
     np.testing.assert_array_equal(right.bone_ids, right.weights.argmax(1).numpy())
     assert set(right.part_labels.tolist()) == set(range(len(layouts.HAND_PARTS)))
@@ -91,7 +96,7 @@ def test_proximity_and_fingertip_ids(right):
 
 
 def test_template_is_deterministic(right):
-    from grip_bench.bodies import hand as hand_mod
+    from grip_bench.bodies import hand_template as hand_mod
 
     v0, f0 = hand_mod._template_mesh()
     hand_mod._template_mesh.cache_clear()
@@ -105,8 +110,43 @@ def test_template_is_deterministic(right):
     np.testing.assert_array_equal(again.proximity_ids, right.proximity_ids)
 
 
+
+def test_template_cache_key_hashes_the_template_code_not_hand_py(monkeypatch):
+    """The on-disk template entry is keyed by hand_template.py (+ layouts.py), never by
+    hand.py: editing ProceduralHand (forward, LBS, clamp) must not rebuild the mesh."""
+    from pathlib import Path
+
+    from grip_bench.bodies import hand as hand_py
+    from grip_bench.bodies import hand_template
+
+    hand_file = Path(hand_py.__file__).resolve()
+    template_file = Path(hand_template.__file__).resolve()
+    sources = {Path(p).resolve() for p in hand_template._TEMPLATE_SOURCES}
+    assert sources == {template_file, Path(layouts.__file__).resolve()}
+    key = hand_template._template_cache_key()
+    assert hand_template._template_cache_key() == key  # a pure function of the files
+
+    real, read = Path.read_bytes, []
+
+    def editing(target: Path):
+        def read_bytes(self: Path) -> bytes:
+            read.append(self.resolve())
+            data = real(self)
+            return data + b"\n# edited\n" if self.resolve() == target else data
+
+        return read_bytes
+
+    monkeypatch.setattr(Path, "read_bytes", editing(hand_file))
+    assert hand_template._template_cache_key() == key
+    assert hand_file not in read and template_file in read
+    monkeypatch.setattr(Path, "read_bytes", editing(template_file))  # the control
+    assert hand_template._template_cache_key() != key
+
+
 def test_left_template_is_mirror(right, left):
-    np.testing.assert_array_equal(left.template_vertices.numpy(), mirror_points(right.template_vertices.numpy()))
+    np.testing.assert_array_equal(
+        left.template_vertices.numpy(), mirror_points(right.template_vertices.numpy())
+    )
     np.testing.assert_array_equal(left.faces, right.faces[:, ::-1])
     assert left.mesh(left.template_vertices).volume > 0
     np.testing.assert_array_equal(left.proximity_ids, right.proximity_ids)
@@ -208,7 +248,9 @@ def test_clamp_idempotent_and_within_limits(right, left):
         torch.testing.assert_close(hand.clamp(wild.reshape(64, 45)), c.reshape(64, 45))
         inside = hand.sample_pose(32, generator=g)
         torch.testing.assert_close(hand.clamp(inside), inside, atol=1e-12, rtol=0)
-    torch.testing.assert_close(left.clamp(mirror_axis_angle(wild)), mirror_axis_angle(right.clamp(wild)))
+    torch.testing.assert_close(
+        left.clamp(mirror_axis_angle(wild)), mirror_axis_angle(right.clamp(wild))
+    )
 
 
 def test_named_poses(right, left):
@@ -219,7 +261,9 @@ def test_named_poses(right, left):
         local = hand.to_local(relaxed)
         assert torch.rad2deg(local[[0, 3, 6, 9], 0]).min() > 10  # MCP flexion
         assert 20 <= torch.rad2deg(local[1, 0]) <= 30  # PIP
-    torch.testing.assert_close(left.named_pose("relaxed"), mirror_axis_angle(right.named_pose("relaxed")))
+    torch.testing.assert_close(
+        left.named_pose("relaxed"), mirror_axis_angle(right.named_pose("relaxed"))
+    )
     with pytest.raises(InputError, match="name"):
         right.named_pose("fist")
 
@@ -228,7 +272,11 @@ def test_limits_table(right):
     lim = right.joint_limits
     assert lim.names == layouts.MANO_JOINTS[1:]
     assert lim.frames.shape == (15, 3, 3) and (lim.lower < lim.upper).all()
-    np.testing.assert_allclose(np.einsum("jab,jac->jbc", lim.frames, lim.frames), np.broadcast_to(np.eye(3), (15, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(
+        np.einsum("jab,jac->jbc", lim.frames, lim.frames),
+        np.broadcast_to(np.eye(3), (15, 3, 3)),
+        atol=1e-12,
+    )
     np.testing.assert_allclose(np.linalg.det(lim.frames), 1.0)
     # finger flexion axes are the template's +z (MANO convention for the right hand)
     for j in (3, 4, 5):  # middle finger
@@ -309,7 +357,13 @@ def test_self_intersection_report(capsys):
         ({"hand_pose": torch.full((2, 45), float("nan"))}, "hand_pose"),
         ({"hand_pose": torch.zeros(2, 45), "global_orient": torch.zeros(3, 3)}, "global_orient"),
         ({"hand_pose": torch.zeros(2, 45), "global_orient": torch.zeros(2, 4)}, "global_orient"),
-        ({"hand_pose": torch.zeros(2, 45), "transl": torch.tensor([[0.0, float("inf"), 0.0]] * 2)}, "transl"),
+        (
+            {
+                "hand_pose": torch.zeros(2, 45),
+                "transl": torch.tensor([[0.0, float("inf"), 0.0]] * 2),
+            },
+            "transl",
+        ),
         ({"hand_pose": None}, "hand_pose"),
     ],
 )
@@ -317,7 +371,11 @@ def test_bad_inputs(right, kwargs, name):
     with pytest.raises(InputError) as err:
         right(**kwargs)
     assert err.value.where == name
-    if kwargs.get(name) is not None and "nan" not in repr(kwargs[name]) and "inf" not in repr(kwargs[name]):
+    if (
+        kwargs.get(name) is not None
+        and "nan" not in repr(kwargs[name])
+        and "inf" not in repr(kwargs[name])
+    ):
         assert str(tuple(kwargs[name].shape)) in err.value.what
 
 

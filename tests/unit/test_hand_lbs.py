@@ -90,7 +90,7 @@ def test_forward_batches_and_chunks_agree():
 
 
 def test_template_mesh_is_the_same_from_the_geometry_cache(tmp_path, monkeypatch):
-    from grip_bench.bodies import hand as hand_mod
+    from grip_bench.bodies import hand_template as hand_mod
 
     monkeypatch.setenv("GRIP_BENCH_CACHE", "off")
     built = hand_mod._build_template_mesh()

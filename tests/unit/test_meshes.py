@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from grip_bench import constants
-from grip_bench.errors import InputError
+from grip_bench.core import constants
+from grip_bench.core.errors import InputError
 from grip_bench.geometry import meshes
 from grip_bench.geometry.meshes import ObjectAsset, from_manifold, load_object_mesh, to_manifold
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from grip_bench import constants as C
+from grip_bench.core import constants as C
 from grip_bench.metrics import (
     contact_consistency,
     contact_drift,
@@ -75,6 +75,8 @@ def test_contact_frequency_matches_loop():
     rng = np.random.default_rng(6)
     d = rng.uniform(-0.001, 0.01, size=(20, 8))
     mask = rng.random(20) > 0.3
-    ref = [np.mean([d[t, i] <= C.CONTACT_THRESHOLD for t in range(20) if mask[t]]) for i in range(8)]
+    ref = [
+        np.mean([d[t, i] <= C.CONTACT_THRESHOLD for t in range(20) if mask[t]]) for i in range(8)
+    ]
     np.testing.assert_allclose(contact_frequency(d, mask), ref)
     assert np.isnan(contact_frequency(d, np.zeros(20, bool))).all()

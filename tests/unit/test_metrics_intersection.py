@@ -30,7 +30,11 @@ def blob(seed: int, radius: float = 0.03, subdiv: int = 3) -> trimesh.Trimesh:
     rng = np.random.default_rng(seed)
     s = trimesh.creation.icosphere(subdiv)
     u = s.vertices
-    k, phase, amp = rng.normal(size=(3, 3)), rng.uniform(0, 6, size=3), rng.uniform(0.05, 0.2, size=3)
+    k, phase, amp = (
+        rng.normal(size=(3, 3)),
+        rng.uniform(0, 6, size=3),
+        rng.uniform(0.05, 0.2, size=3),
+    )
     bumps = sum(a * np.sin(u @ kk * 2 + p) for a, kk, p in zip(amp, k, phase, strict=True))
     stretch = rng.uniform(0.6, 1.4, size=3)
     return trimesh.Trimesh(u * (1 + bumps)[:, None] * stretch * radius, s.faces, process=False)
@@ -83,7 +87,9 @@ def test_far_from_origin_and_float32_path_stay_precise(monkeypatch):
     far = intersection_volume(sphere(r, off), sphere(r, off + [d, 0, 0]))
     assert far == pytest.approx(ref, rel=1e-6)
     monkeypatch.delattr(manifold3d, "Mesh64")  # older manifold3d: float32 after the local shift
-    assert intersection_volume(sphere(r, off), sphere(r, off + [d, 0, 0])) == pytest.approx(ref, rel=1e-3)
+    assert intersection_volume(sphere(r, off), sphere(r, off + [d, 0, 0])) == pytest.approx(
+        ref, rel=1e-3
+    )
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -134,7 +140,9 @@ def test_batch_matches_single_with_object_poses():
     for t in range(T):
         posed = obj.copy()
         posed.apply_transform(np.block([[rots[t], trans[t][:, None]], [np.zeros((1, 3)), 1]]))
-        assert out[t] == pytest.approx(intersection_volume(trimesh.Trimesh(hv[t], hand.faces), posed), rel=1e-6, abs=1e-12)
+        assert out[t] == pytest.approx(
+            intersection_volume(trimesh.Trimesh(hv[t], hand.faces), posed), rel=1e-6, abs=1e-12
+        )
     assert out[-1] == 0.0 and failures.count == 0
     bad = intersection_volume_batch(hv, hand.faces[1:], obj, rots, trans, failures)
     assert np.isnan(bad).all() and failures.count == T

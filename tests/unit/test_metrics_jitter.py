@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from grip_bench import constants as C
+from grip_bench.core import constants as C
 from grip_bench.metrics import jitter, jitter_error
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from grip_bench import constants as C
+from grip_bench.core import constants as C
 from grip_bench.metrics import physics
 from grip_bench.metrics.physics import convex_decomposition, hand_convex_pieces, stability
 
@@ -65,7 +65,9 @@ def test_plates_that_do_not_touch_let_it_fall():
     off = 0.025 + C.SIM_CONTACT_MARGIN + 0.0005  # 0.5 mm beyond the contact margin on each side
     plates = [at(plate, [-off, 0, 0]), at(plate, [off, 0, 0])]
     res = stability(plates, BOX, "hold")
-    assert res.displacement == pytest.approx(free_fall(round(C.SIM_HOLD_SECONDS / C.SIM_DT)), rel=1e-6)
+    assert res.displacement == pytest.approx(
+        free_fall(round(C.SIM_HOLD_SECONDS / C.SIM_DT)), rel=1e-6
+    )
 
 
 @pytest.mark.parametrize("depth", [0.002, 0.01])

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from grip_bench.errors import InputError
+from grip_bench.core.errors import InputError
 from grip_bench.metrics import mpjpe, mpvpe
 
 
@@ -19,7 +19,10 @@ def test_mpjpe_known_offset_ignores_wrist_and_tips():
 def test_mpvpe_matches_python_loop():
     rng = np.random.default_rng(1)
     pred, gt = rng.normal(size=(2, 5, 40, 3))
-    ref = [sum(np.sqrt(sum((p[i] - g[i]) ** 2)) for i in range(len(p))) / len(p) for p, g in zip(pred, gt, strict=True)]
+    ref = [
+        sum(np.sqrt(sum((p[i] - g[i]) ** 2)) for i in range(len(p))) / len(p)
+        for p, g in zip(pred, gt, strict=True)
+    ]
     np.testing.assert_allclose(mpvpe(pred, gt), ref, rtol=1e-12)
 
 

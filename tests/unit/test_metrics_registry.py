@@ -1,6 +1,6 @@
-"""The metric registry lists every id of DESIGN 5 with a one-line description."""
+"""Every metric id of docs/contract.md, "Definitions", is registered with a one-line description."""
 
-from grip_bench import catalog
+from grip_bench.cli import catalog
 from grip_bench.metrics import METRICS
 
 IDS = [

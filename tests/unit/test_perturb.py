@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from grip_bench.bodies.layouts import SMPLX_INDEX
+from grip_bench.core.errors import InputError
 from grip_bench.data.grab_io import dataset_hash, read_grab
 from grip_bench.data.perturb import perturb_dataset, perturb_sequence, sequence_rng
 from grip_bench.data.splits import read_splits
-from grip_bench.errors import InputError
 from tests.grab_fixtures import make_sequence, write_dataset
 
 T = 300  # 1800+ noise samples per check: the std estimate is within ~2% (1 sigma)
@@ -48,9 +48,15 @@ def test_translation_noise(seq, sigma):
 def test_hand_pose_noise(seq, sigma):
     out = perturb_sequence(seq, "R", sigma, np.random.default_rng(1))
     d = _diffs(seq, out)
-    assert set(d) == {("rhand", "hand_pose"), ("lhand", "hand_pose"), ("rhand", "fullpose"),
-                      ("lhand", "fullpose"), ("body", "right_hand_pose"), ("body", "left_hand_pose"),
-                      ("body", "fullpose")}
+    assert set(d) == {
+        ("rhand", "hand_pose"),
+        ("lhand", "hand_pose"),
+        ("rhand", "fullpose"),
+        ("lhand", "fullpose"),
+        ("body", "right_hand_pose"),
+        ("body", "left_hand_pose"),
+        ("body", "fullpose"),
+    }
     for side, part in (("right", "rhand"), ("left", "lhand")):
         noise = d[(part, "hand_pose")]
         assert noise.std() == pytest.approx(sigma, rel=0.1)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from grip_bench import constants as C
+from grip_bench.core import constants as C
 from grip_bench.metrics import physics
 
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from grip_bench.errors import InputError, UnsafeFileError
-from grip_bench.safe_pickle import load_npz, load_pickle
+from grip_bench.core.errors import InputError, UnsafeFileError
+from grip_bench.core.safe_pickle import load_npz, load_pickle
 
 
 class Evil:

@@ -5,9 +5,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from grip_bench import constants as C
 from grip_bench import sensors as S
 from grip_bench.bodies.hand import ProceduralHand
+from grip_bench.core import constants as C
 from tests.grab_fixtures import BOX_EXTENTS
 from tests.grip_fixtures import write_grip_dataset
 
@@ -63,10 +63,13 @@ def test_ambient_points_sit_on_the_mean_hand():
             _, joints = hand(None, hand.named_pose("relaxed")[None], None)
         centre = joints[0, 4].numpy()  # MANO middle1
         pts = S.ambient_points(side)
-        np.testing.assert_allclose(pts - centre, S.hemisphere() * ([-1, 1, 1] if side == "left" else 1),
-                                   atol=1e-6)
+        np.testing.assert_allclose(
+            pts - centre, S.hemisphere() * ([-1, 1, 1] if side == "left" else 1), atol=1e-6
+        )
         assert ((pts - centre) @ hand.palm_normal >= 0).all()
-    np.testing.assert_allclose(S.ambient_points("left"), S.ambient_points("right") * [-1, 1, 1], atol=1e-6)
+    np.testing.assert_allclose(
+        S.ambient_points("left"), S.ambient_points("right") * [-1, 1, 1], atol=1e-6
+    )
 
 
 def test_voxel_cells_cover_the_hemisphere_box():
@@ -100,15 +103,21 @@ def test_proximity_and_voxel_match_brute_force(data):
     occ = S.ambient_feature(lib, seq, rot, transl, "right", "voxel")
     cells = S.to_world(S.voxel_points("right", seq.hand_scale), rot, transl)
     R, t = seq.object_rotations(), seq.object["transl"]
-    inside = [[box_sdf(np.linalg.solve(R[f].T, cells[f, n] - t[f])) < 0 for n in range(cells.shape[1])]
-              for f in range(len(cells))]
+    inside = [
+        [box_sdf(np.linalg.solve(R[f].T, cells[f, n] - t[f])) < 0 for n in range(cells.shape[1])]
+        for f in range(len(cells))
+    ]
     np.testing.assert_array_equal(occ, np.array(inside, np.float32))
 
 
 def test_stage_one_shapes_and_kinds(data):
     lib, seq = data
     one = S.stage_one(lib, seq)
-    assert one.ambient.shape == (seq.n_frames, 2, 1024) and one.proximity.shape == (seq.n_frames, 2, 99)
+    assert one.ambient.shape == (seq.n_frames, 2, 1024) and one.proximity.shape == (
+        seq.n_frames,
+        2,
+        99,
+    )
     assert 0 <= one.ambient.min() and one.ambient.max() <= 1
     assert S.stage_one(lib, seq, ambient="none").ambient.shape == (seq.n_frames, 2, 0)
     with pytest.raises(Exception, match="ambient"):
@@ -132,5 +141,7 @@ def test_future_cue_by_hand():
 def test_wrist_frames_follow_global_orient(data):
     _, seq = data
     rot, transl = S.wrist_frames(seq, "left")
-    np.testing.assert_allclose(rot, Rotation.from_rotvec(seq.lhand["global_orient"]).as_matrix(), atol=1e-6)
+    np.testing.assert_allclose(
+        rot, Rotation.from_rotvec(seq.lhand["global_orient"]).as_matrix(), atol=1e-6
+    )
     np.testing.assert_array_equal(transl, seq.lhand["transl"])

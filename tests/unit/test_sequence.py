@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from grip_bench import constants as C
+from grip_bench.core import constants as C
+from grip_bench.core.errors import InputError
 from grip_bench.data.sequence import (
     CONTACT_HAND_LABELS,
     contact_label,
     make_body_params,
 )
-from grip_bench.errors import InputError
 from tests.grab_fixtures import box_mesh, make_sequence
 
 
@@ -55,23 +55,54 @@ def _set(seq, part, key, value):
     getattr(seq, part)[key] = value
 
 
-@pytest.mark.parametrize("mutate, key, message", [
-    (lambda s: _set(s, "rhand", "transl", np.zeros((10, 2), np.float32)), "rhand.params.transl", r"should be \(T, 3\)"),
-    (lambda s: _set(s, "body", "body_pose", np.zeros((9, 63), np.float32)), "body.params.body_pose", "9 frames"),
-    (lambda s: s.lhand["hand_pose"].__setitem__((3, 4), np.nan), "lhand.params.hand_pose", "non-finite .*frame 3"),
-    (lambda s: s.object["transl"].__setitem__((0, 1), 800.0), "object.params.transl", "millimetres"),
-    (lambda s: s.rhand["global_orient"].__setitem__((2, 0), 90.0), "rhand.params.global_orient", "degrees"),
-    (lambda s: _set(s, "table", "transl", np.zeros((10, 3), np.int64)), "table.params.transl", "floating point"),
-    (lambda s: s.body.pop("expression"), "body.params.expression", "missing"),
-    (lambda s: setattr(s, "fps", 120.0), "framerate", "should be 30"),
-    (lambda s: setattr(s, "gender", "x"), "gender", "one of"),
-    (lambda s: setattr(s, "body_model", "mano"), "body_model", "one of"),
-    (lambda s: setattr(s, "obj_name", "../mug"), "obj_name", "path separators"),
-    (lambda s: setattr(s, "height", 175.0), "body.height", "plausible range"),
-    (lambda s: s.contact.pop("object"), "contact.object", "missing"),
-    (lambda s: s.contact.__setitem__("object", np.zeros((10, 8))), "contact.object", "integer"),
-    (lambda s: s.contact.__setitem__("object", np.zeros((7, 8), int)), "contact.object", "7 frames"),
-])
+@pytest.mark.parametrize(
+    "mutate, key, message",
+    [
+        (
+            lambda s: _set(s, "rhand", "transl", np.zeros((10, 2), np.float32)),
+            "rhand.params.transl",
+            r"should be \(T, 3\)",
+        ),
+        (
+            lambda s: _set(s, "body", "body_pose", np.zeros((9, 63), np.float32)),
+            "body.params.body_pose",
+            "9 frames",
+        ),
+        (
+            lambda s: s.lhand["hand_pose"].__setitem__((3, 4), np.nan),
+            "lhand.params.hand_pose",
+            "non-finite .*frame 3",
+        ),
+        (
+            lambda s: s.object["transl"].__setitem__((0, 1), 800.0),
+            "object.params.transl",
+            "millimetres",
+        ),
+        (
+            lambda s: s.rhand["global_orient"].__setitem__((2, 0), 90.0),
+            "rhand.params.global_orient",
+            "degrees",
+        ),
+        (
+            lambda s: _set(s, "table", "transl", np.zeros((10, 3), np.int64)),
+            "table.params.transl",
+            "floating point",
+        ),
+        (lambda s: s.body.pop("expression"), "body.params.expression", "missing"),
+        (lambda s: setattr(s, "fps", 120.0), "framerate", "should be 30"),
+        (lambda s: setattr(s, "gender", "x"), "gender", "one of"),
+        (lambda s: setattr(s, "body_model", "mano"), "body_model", "one of"),
+        (lambda s: setattr(s, "obj_name", "../mug"), "obj_name", "path separators"),
+        (lambda s: setattr(s, "height", 175.0), "body.height", "plausible range"),
+        (lambda s: s.contact.pop("object"), "contact.object", "missing"),
+        (lambda s: s.contact.__setitem__("object", np.zeros((10, 8))), "contact.object", "integer"),
+        (
+            lambda s: s.contact.__setitem__("object", np.zeros((7, 8), int)),
+            "contact.object",
+            "7 frames",
+        ),
+    ],
+)
 def test_validation_names_file_and_key(mutate, key, message):
     seq = make_sequence(T=10)
     mutate(seq)
@@ -110,8 +141,19 @@ def test_contact_labels_follow_grab():
 
 def test_body_fullpose_layout_is_smplx_order():
     rng = np.random.default_rng(0)
-    a = {k: rng.normal(size=(2, n)) for k, n in
-         (("go", 3), ("bp", 63), ("tr", 3), ("lh", 45), ("rh", 45), ("jaw", 3), ("le", 3), ("re", 3))}
+    a = {
+        k: rng.normal(size=(2, n))
+        for k, n in (
+            ("go", 3),
+            ("bp", 63),
+            ("tr", 3),
+            ("lh", 45),
+            ("rh", 45),
+            ("jaw", 3),
+            ("le", 3),
+            ("re", 3),
+        )
+    }
     p = make_body_params(a["go"], a["bp"], a["tr"], a["lh"], a["rh"], a["jaw"], a["le"], a["re"])
     full = p["fullpose"]
     assert full.shape == (2, 165)
@@ -137,8 +179,12 @@ def test_with_hands_replaces_poses_and_keeps_fullposes_consistent():
     out = seq.with_hands(right={"hand_pose": pose})
     np.testing.assert_array_equal(out.rhand["hand_pose"], pose.reshape(6, 45))
     np.testing.assert_array_equal(out.body["right_hand_pose"], pose.reshape(6, 45))
-    np.testing.assert_array_equal(out.rhand["fullpose"], hand_fullpose(out.rhand["global_orient"], out.rhand["hand_pose"]))
+    np.testing.assert_array_equal(
+        out.rhand["fullpose"], hand_fullpose(out.rhand["global_orient"], out.rhand["hand_pose"])
+    )
     np.testing.assert_array_equal(out.body["fullpose"], body_fullpose(out.body))
-    np.testing.assert_array_equal(out.lhand["hand_pose"], seq.lhand["hand_pose"])  # other side untouched
+    np.testing.assert_array_equal(
+        out.lhand["hand_pose"], seq.lhand["hand_pose"]
+    )  # other side untouched
     assert not np.array_equal(seq.rhand["hand_pose"], out.rhand["hand_pose"])  # input not modified
     out.validate()

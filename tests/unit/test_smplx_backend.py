@@ -22,7 +22,7 @@ import trimesh
 
 from grip_bench.bodies import smplx_backend as sb
 from grip_bench.bodies.layouts import MANO_PARENTS, SMPLX_PARENTS
-from grip_bench.errors import GripBenchError, MissingModelError, UnsafeFileError
+from grip_bench.core.errors import GripBenchError, MissingModelError, UnsafeFileError
 
 smplx = pytest.importorskip("smplx")
 
@@ -121,15 +121,19 @@ def smplx_data(rng) -> dict:
     for j in range(55):
         reg[j, rng.choice(n, 3, replace=False)] = 1 / 3
     return {
-        "v_template": verts, "f": faces.astype(np.int32), "weights": weights,
+        "v_template": verts,
+        "f": faces.astype(np.int32),
+        "weights": weights,
         "J_regressor": reg,
         "kintree_table": np.array([[ROOT, *SMPLX_PARENTS[1:]], list(range(55))], dtype=np.int64),
         "posedirs": rng.normal(scale=1e-4, size=(n, 3, 486)),
         "shapedirs": rng.normal(scale=1e-3, size=(n, 3, 20)),
         "hands_componentsl": np.linalg.qr(rng.normal(size=(45, 45)))[0],
         "hands_componentsr": np.linalg.qr(rng.normal(size=(45, 45)))[0],
-        "hands_meanl": rng.normal(scale=0.1, size=45), "hands_meanr": rng.normal(scale=0.1, size=45),
-        "lmk_faces_idx": rng.integers(0, len(faces), 51), "lmk_bary_coords": np.full((51, 3), 1 / 3),
+        "hands_meanl": rng.normal(scale=0.1, size=45),
+        "hands_meanr": rng.normal(scale=0.1, size=45),
+        "lmk_faces_idx": rng.integers(0, len(faces), 51),
+        "lmk_bary_coords": np.full((51, 3), 1 / 3),
         "joint2num": np.array({"pelvis": 0}, dtype=object),  # object members exist in the real npz
         "part2num": np.array({"global": 0}, dtype=object),
     }

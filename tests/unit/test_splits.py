@@ -4,6 +4,7 @@ import json
 
 import pytest
 
+from grip_bench.core.errors import InputError
 from grip_bench.data.splits import (
     GRAB_OBJECTS,
     GRAB_SPLITS,
@@ -14,7 +15,6 @@ from grip_bench.data.splits import (
     validate_splits,
     write_splits,
 )
-from grip_bench.errors import InputError
 from tests.grab_fixtures import write_dataset
 
 
@@ -74,10 +74,17 @@ def test_missing_and_unreadable_file(tmp_path):
 
 
 def test_sequences_in_split(tmp_path):
-    specs = [("s1", "mug", "lift"), ("s1", "cup", "pass"), ("s2", "mug", "use"), ("s2", "ball", "lift")]
+    specs = [
+        ("s1", "mug", "lift"),
+        ("s1", "cup", "pass"),
+        ("s2", "mug", "use"),
+        ("s2", "ball", "lift"),
+    ]
     write_dataset(tmp_path, specs, T=4,
                   splits={"train": ["cup"], "val": ["ball"], "test": ["mug"]})
-    test = [p.relative_to(tmp_path / "grab").as_posix() for p in sequences_in_split(tmp_path, "test")]
+    test = [
+        p.relative_to(tmp_path / "grab").as_posix() for p in sequences_in_split(tmp_path, "test")
+    ]
     assert test == ["s1/mug_lift_1.npz", "s2/mug_use_1.npz"]
     assert len(sequences_in_split(tmp_path, "train")) == 1
     with pytest.raises(InputError, match="unknown split"):

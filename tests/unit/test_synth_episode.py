@@ -7,12 +7,15 @@ import pytest
 import torch
 import trimesh
 
-from grip_bench import constants as C
+from grip_bench.core import constants as C
 from grip_bench.data.grab_io import read_grab, write_grab
 from grip_bench.data.sequence import CONTACT_HAND_LABELS
 from grip_bench.data.synth import episode as E
+from grip_bench.data.synth.caches import ObjectTools, hand_models
+from grip_bench.data.synth.grasp_plan import hands_clear
 from grip_bench.data.synth.motion import min_jerk_path
 from grip_bench.data.synth.objects import make_instance
+from grip_bench.data.synth.scene import SIDES, object_of
 from grip_bench.data.synth.world import make_subjects
 
 SUBJECTS = make_subjects(4, 0)
@@ -21,7 +24,7 @@ SUBJECTS = make_subjects(4, 0)
 @pytest.fixture(scope="module")
 def cube():
     inst = make_instance("cubemedium", np.random.default_rng(0), 0)
-    return inst, E.ObjectTools(inst)
+    return inst, ObjectTools(inst)
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +67,7 @@ def test_held_object_is_rigid_with_every_holding_wrist(episode):
     for s in episode.cast.sides:
         m = mo.attached[s]
         assert m.sum() > 30
-        R, p = E.object_of(mo.wrist[s][0][m], mo.wrist[s][1][m], episode.cast.grasps[s])
+        R, p = object_of(mo.wrist[s][0][m], mo.wrist[s][1][m], episode.cast.grasps[s])
         np.testing.assert_allclose(R, mo.obj_R[m], atol=1e-6)
         np.testing.assert_allclose(p, mo.obj_p[m], atol=1e-6)
 
@@ -73,7 +76,7 @@ def test_rest_pose_at_start_and_end_and_ik_reached(episode):
     mo = episode.motion
     assert mo.reached.all()
     np.testing.assert_allclose(mo.body_pose[0], mo.body_pose[-1], atol=1e-6)
-    for s in E.SIDES:
+    for s in SIDES:
         np.testing.assert_allclose(mo.fingers[s][0], mo.fingers[s][-1], atol=1e-9)
         np.testing.assert_allclose(mo.wrist[s][1][0], mo.wrist[s][1][-1], atol=1e-6)
         # arms hang: the wrist is well below the shoulder and near the hip
@@ -81,7 +84,7 @@ def test_rest_pose_at_start_and_end_and_ik_reached(episode):
 
 
 def test_hands_stay_above_table_and_penetration_is_bounded(episode):
-    for s in E.SIDES:
+    for s in SIDES:
         c = episode.contacts[s]
         assert c.table_gap > -E.TABLE_TOLERANCE - 1e-9
         assert (c.penetration[c.grasp] <= 0.004).all()
@@ -98,9 +101,9 @@ def test_contact_labels_come_from_hand_ids(episode):
 
 
 def test_bimanual_hands_hold_together_without_colliding(bimanual):
-    hands = E.hand_models(bimanual.cast.subject.hand_scale)
+    hands = hand_models(bimanual.cast.subject.hand_scale)
     g = bimanual.cast.grasps
-    assert E.hands_clear(hands, g["right"], g["left"])
+    assert hands_clear(hands, g["right"], g["left"])
     both = bimanual.motion.attached["right"] & bimanual.motion.attached["left"]
     assert both.sum() >= 30
     assert (bimanual.contacts["right"].grasp & bimanual.contacts["left"].grasp).sum() >= 30
@@ -114,8 +117,12 @@ def test_same_seed_same_bytes_and_different_seed_differs(cube, lift):
             assert v.tobytes() == getattr(again.sequence, part)[k].tobytes(), (part, k)
     assert lift.sequence.contact["object"].tobytes() == again.sequence.contact["object"].tobytes()
     other = E.make_episode(SUBJECTS[0], inst, "lift", 4, tools)
-    assert not np.array_equal(other.sequence.object["transl"][:50], lift.sequence.object["transl"][:50]) \
+    assert (
+        not np.array_equal(
+            other.sequence.object["transl"][:50], lift.sequence.object["transl"][:50]
+        )
         or other.sequence.n_frames != lift.sequence.n_frames
+    )
 
 
 def test_plain_grab_recipe_reads_what_synthgrab_wrote(tmp_path, lift):

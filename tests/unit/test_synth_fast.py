@@ -4,16 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from grip_bench.constants import CONTACT_THRESHOLD
+from grip_bench.core.constants import CONTACT_THRESHOLD
 from grip_bench.data.synth import episode as E
 from grip_bench.data.synth import grasp as G
+from grip_bench.data.synth.caches import ObjectTools, hand_models
+from grip_bench.data.synth.contact import _posed_hands, contact_labels, repeats
+from grip_bench.data.synth.grasp_plan import approach_dirs
 from grip_bench.data.synth.objects import make_instance
+from grip_bench.data.synth.scene import SIDES
 from grip_bench.data.synth.world import make_subjects
 
 
 def test_distance_bound_is_below_the_field_and_exact_under_the_threshold():
     inst = make_instance("mug", np.random.default_rng(0), 0)
-    tools = E.ObjectTools(inst)
+    tools = ObjectTools(inst)
     rng = np.random.default_rng(1)
     lo, hi = inst.mesh.bounds
     p = rng.uniform(lo - 0.06, hi + 0.06, size=(20000, 3))
@@ -28,24 +32,27 @@ def test_distance_bound_is_below_the_field_and_exact_under_the_threshold():
 
 def test_contact_labels_from_repeated_frames_equal_the_frame_by_frame_labels():
     inst = make_instance("cubemedium", np.random.default_rng(0), 0)
-    tools = E.ObjectTools(inst)
+    tools = ObjectTools(inst)
     sub = make_subjects(4, 0)[0]
     ep = E.make_episode(sub, inst, "lift", 3, tools)
-    hands = E.hand_models(sub.hand_scale)
-    verts = E._posed_hands(hands, ep.motion)
-    v_obj = {s: np.einsum("tvj,tjk->tvk", verts[s] - ep.motion.obj_p[:, None], ep.motion.obj_R) for s in E.SIDES}
-    plain = E.contact_labels(v_obj, ep.contacts, hands, np.asarray(tools.contact_mesh.vertices))
+    hands = hand_models(sub.hand_scale)
+    verts = _posed_hands(hands, ep.motion)
+    v_obj = {
+        s: np.einsum("tvj,tjk->tvk", verts[s] - ep.motion.obj_p[:, None], ep.motion.obj_R)
+        for s in SIDES
+    }
+    plain = contact_labels(v_obj, ep.contacts, hands, np.asarray(tools.contact_mesh.vertices))
     assert np.array_equal(plain, ep.sequence.contact["object"])
-    rep = E.repeats(v_obj[sub.dominant])
+    rep = repeats(v_obj[sub.dominant])
     held = ep.motion.attached[sub.dominant]
     assert len(np.unique(rep[held])) < held.sum() / 3  # a held hand does not move on the object
 
 
 def test_sphere_tracing_stops_at_the_gap():
     inst = make_instance("cylindermedium", np.random.default_rng(0), 0)
-    tools = E.ObjectTools(inst)
+    tools = ObjectTools(inst)
     synth = tools.synth(1.0)
-    dirs = E.approach_dirs("right", False)
+    dirs = approach_dirs("right", False)
     R, _ = synth._orientations("right", dirs, np.array([0.0, 0.0, 1.0]), "power")
     full, _, sub = G._light_hand("right", 1.0)
     local0 = np.broadcast_to(G.preshape_local("power"), (len(R), 15, 3)).copy()

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from grip_bench.constants import CONTACT_THRESHOLD
+from grip_bench.core.constants import CONTACT_THRESHOLD
 from grip_bench.data.synth import grasp as G
 from grip_bench.data.synth.objects import make_instance
 from grip_bench.geometry.distance import DistanceField
@@ -28,9 +28,14 @@ def _synth(name):
     return obj, df, gs
 
 
-@pytest.mark.parametrize("name,side,kind", [
-    ("cylindermedium", "right", "power"), ("mug", "right", "handle"), ("cubesmall", "left", "precision"),
-])
+@pytest.mark.parametrize(
+    "name,side,kind",
+    [
+        ("cylindermedium", "right", "power"),
+        ("mug", "right", "handle"),
+        ("cubesmall", "left", "precision"),
+    ],
+)
 def test_grasp_holds_without_penetration(name, side, kind):
     torch.set_num_threads(1)
     obj, df, gs = _synth(name)
@@ -51,8 +56,12 @@ def test_grasp_holds_without_penetration(name, side, kind):
 
 def test_grasp_is_deterministic_for_a_seed():
     _, _, gs = _synth("apple")
-    a = gs.search("right", _approach_dirs("right"), np.array([0.0, 0.0, 1.0]), np.random.default_rng(5))
-    b = gs.search("right", _approach_dirs("right"), np.array([0.0, 0.0, 1.0]), np.random.default_rng(5))
+    a = gs.search(
+        "right", _approach_dirs("right"), np.array([0.0, 0.0, 1.0]), np.random.default_rng(5)
+    )
+    b = gs.search(
+        "right", _approach_dirs("right"), np.array([0.0, 0.0, 1.0]), np.random.default_rng(5)
+    )
     np.testing.assert_array_equal(a.hand_pose, b.hand_pose)
     np.testing.assert_array_equal(a.t, b.t)
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from grip_bench.constants import SYNTH_LARGE_EXTENT
+from grip_bench.core.constants import SYNTH_LARGE_EXTENT
+from grip_bench.core.errors import InputError
 from grip_bench.data.synth.objects import (
     FAMILIES,
     GRASP_HINTS,
@@ -18,7 +19,6 @@ from grip_bench.data.synth.objects import (
     make_object_set,
     mug_body_volume,
 )
-from grip_bench.errors import InputError
 
 NAMES = FAMILIES.names()
 VOLUME_RTOL = 0.03  # faceting (40-48 segments) loses < 1.5% of a sphere or torus

@@ -2,17 +2,22 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pytest
 import torch
 from grip_baselines import toch
 
-from grip_bench.constants import TOCH_HIT_THRESHOLD
+from grip_bench.core.constants import TOCH_HIT_THRESHOLD
+
+if TYPE_CHECKING:
+    from grip_bench.bodies.hand import ProceduralHand
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # the 2 test cores are shared
 
 
-def test_hit_pos_weight_is_the_class_ratio():
+def test_hit_pos_weight_is_the_class_ratio() -> None:
     hits = torch.zeros(4, 100)
     hits[:, :10] = 1.0  # 10 % hits
     assert toch.hit_pos_weight(hits) == pytest.approx(9.0)
@@ -20,7 +25,7 @@ def test_hit_pos_weight_is_the_class_ratio():
     assert toch.hit_pos_weight(hits[:, :11], max_weight=0.05) == 0.05
 
 
-def test_pos_weight_scales_the_hit_term_only():
+def test_pos_weight_scales_the_hit_term_only() -> None:
     torch.manual_seed(0)
     target = torch.cat(
         [(torch.rand(2, 3, 50, 1) < 0.1).float(), torch.randn(2, 3, 50, 4) * 0.01], -1
@@ -33,7 +38,9 @@ def test_pos_weight_scales_the_hit_term_only():
     assert weighted["correspondence"] == plain["correspondence"]
 
 
-def _plate_fields(hand, lifts, n_side=16):
+def _plate_fields(
+    hand: ProceduralHand, lifts: list[tuple[float, float]], n_side: int = 16
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Correspondence fields (T, N, 5) of a flat right hand (palm down) above a plate
     y = 0 sampled on a grid, the palm's lowest point ``lift`` above it per frame, plus
     the points, normals and the plate points under the palm (the known contact)."""
@@ -48,7 +55,7 @@ def _plate_fields(hand, lifts, n_side=16):
     return pts, nrm, np.stack(fields)
 
 
-def test_denoiser_marks_the_points_of_a_known_contact(hand):
+def test_denoiser_marks_the_points_of_a_known_contact(hand: ProceduralHand) -> None:
     """A palm resting on a plate (clean) seen through per-frame height and slide noise.
 
     Only ~15 % of the plate is under the hand, so the hits are the minority class; with
@@ -62,7 +69,7 @@ def test_denoiser_marks_the_points_of_a_known_contact(hand):
     contact = clean[0, :, 0] > 0.5
     assert 0.05 < contact.mean() < 0.3  # a minority of the plate is touched
 
-    def noisy_window(seed):
+    def noisy_window(seed: int) -> np.ndarray:
         r = np.random.default_rng(seed)
         lifts = [(r.normal(0.0, 0.006), 0.003 + abs(r.normal(0.0, 0.01))) for _ in range(T)]
         return _plate_fields(hand, lifts)[2]

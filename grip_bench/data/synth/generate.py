@@ -1,4 +1,4 @@
-"""Generate a SynthGRAB dataset in GRAB's on-disk layout (DESIGN 4.1).
+"""Generate a SynthGRAB dataset in GRAB's on-disk layout (docs/contract.md, "Data on disk").
 
 ``generate(out_dir, profile, seed, workers)``: subjects and objects, object splits
 (held-out instances and whole held-out families), canonical object meshes, a
@@ -14,18 +14,17 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import time
 from collections import Counter, defaultdict
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ...bodies.layouts import HAND_PARTS
-from ...errors import InputError
+from ...core.errors import InputError
+from ...core.io import atomic_write_bytes
 from ..grab_io import OBJECT_MESH_DIR, dataset_hash
 from ..splits import write_splits
 from .world import GENERATOR_NAME, GENERATOR_VERSION, INTENTS, PROFILES, Profile, make_subjects
@@ -94,7 +93,7 @@ def choose_splits(objects, seed: int) -> dict[str, list[str]]:
 
 def write_meshes(out: Path, objects) -> None:
     """Canonical (contact) meshes as ``tools/object_meshes/contact_meshes/<name>.ply``."""
-    from .episode import contact_mesh
+    from .caches import contact_mesh
 
     folder = out / OBJECT_MESH_DIR
     folder.mkdir(parents=True, exist_ok=True)
@@ -104,20 +103,13 @@ def write_meshes(out: Path, objects) -> None:
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        with suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    atomic_write_bytes(path, data)
 
 
 # --- plan -----------------------------------------------------------------------------------------
 def plan(profile: Profile, n_subjects: int, objects, splits, seed: int) -> list[PlanItem]:
-    """The sequence list: objects cycled (held-out ones first so small profiles cover every split)."""
+    """The sequence list: objects cycled (held-out ones first, so that small profiles cover
+    every split)."""
     rng = np.random.default_rng([seed, 9001])
     order = [o for s in ("test", "val") for o in objects if o.name in splits[s][:1]]
     rest = [objects[i] for i in rng.permutation(len(objects)) if objects[i] not in order]
@@ -190,10 +182,13 @@ def episode_stats(ep) -> dict:
             rule = parts[:, 1] & (n_fingers >= 1) if len(parts) else parts
         first_hold = int(np.argmax(mo.attached[s])) if mo.attached[s].any() else mo.n_frames
         st["hands"][s] = {
-            "grasp_frames": int(g.sum()), "pen_sum": float(c.penetration[g].sum()),
+            "grasp_frames": int(g.sum()),
+            "pen_sum": float(c.penetration[g].sum()),
             "pen_max": float(c.penetration[g].max()) if g.any() else 0.0,
-            "rule": int(np.sum(rule)), "parts": [int(x) for x in parts.sum(0)] if len(parts) else [0] * 6,
-            "pre_hold_near": int(g[:first_hold].sum()), "table_gap": float(c.table_gap),
+            "rule": int(np.sum(rule)),
+            "parts": [int(x) for x in parts.sum(0)] if len(parts) else [0] * 6,
+            "pre_hold_near": int(g[:first_hold].sum()),
+            "table_gap": float(c.table_gap),
         }
     moved = np.zeros(mo.n_frames, bool)
     moved[1:] = (np.abs(np.diff(mo.obj_p, axis=0)).max(1) > MOVE_EPS) | \
@@ -203,7 +198,8 @@ def episode_stats(ep) -> dict:
     return st
 
 
-# --- orchestration ----------------------------------------------------------------------------------
+# --- orchestration
+# ----------------------------------------------------------------------------------
 def _groups(items: list[PlanItem], objects) -> list[tuple[tuple[str, int], list[PlanItem]]]:
     """Planned items grouped by object (one distance field per object per worker), biggest first."""
     key = {o.name: (o.family, _instance_index(o.name)) for o in objects}
@@ -234,8 +230,10 @@ def run_plan(out: Path, seed: int, profile: Profile, items, objects, subjects, w
         import multiprocessing as mp
 
         with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-            futures = {pool.submit(run_group, str(out), seed, profile.name, fi, its, subjects): len(its)
-                       for fi, its in groups}
+            futures = {
+                pool.submit(run_group, str(out), seed, profile.name, fi, its, subjects): len(its)
+                for fi, its in groups
+            }
             for fut in as_completed(futures):
                 results += fut.result()
                 bar.update(futures[fut])
@@ -244,7 +242,8 @@ def run_plan(out: Path, seed: int, profile: Profile, items, objects, subjects, w
 
 
 def name_files(out: Path, results: list[dict]) -> None:
-    """Give every written part its GRAB name ``<object>_<intent>_<n>.npz`` (n counts per subject, object, intent)."""
+    """Give every written part its GRAB name ``<object>_<intent>_<n>.npz`` (n counts per
+    subject, object and intent)."""
     count = Counter()
     for r in results:
         if not r["ok"]:
@@ -260,7 +259,8 @@ def generate(out_dir, profile: str = "smoke", seed: int = 0, workers: int | None
              progress: bool = True) -> dict:
     """Write a SynthGRAB dataset into ``out_dir``; return its manifest (also ``manifest.json``).
 
-    Layout: ``grab/s<k>/<object>_<intent>_<n>.npz``, ``tools/object_meshes/contact_meshes/<object>.ply``,
+    Layout: ``grab/s<k>/<object>_<intent>_<n>.npz``,
+    ``tools/object_meshes/contact_meshes/<object>.ply``,
     ``splits.json``, ``manifest.json``. The quality report is printed when ``progress``.
     """
     start = time.perf_counter()
@@ -303,7 +303,8 @@ def _counts(results, splits) -> dict:
     }
 
 
-# --- quality report -----------------------------------------------------------------------------------
+# --- quality report
+# -----------------------------------------------------------------------------------
 def quality_report(results: list[dict], objects) -> dict:
     """Pool the episodes' statistics into the numbers compared with GRAB."""
     ok = [r for r in results if r["ok"]]
@@ -325,19 +326,26 @@ def quality_report(results: list[dict], objects) -> dict:
         tot["right_grasp"] += hands["right"]["grasp_frames"]
         tot["unsupported"] += r["stats"]["unsupported_moves"]
         use = {s for s, h in hands.items() if h["grasp_frames"] > 0}
-        used.update(["right"] * ("right" in use) + ["left"] * ("left" in use) + ["both"] * (len(use) == 2))
+        used.update(
+            ["right"] * ("right" in use) + ["left"] * ("left" in use) + ["both"] * (len(use) == 2)
+        )
     n, g = max(len(ok), 1), max(tot["grasp"], 1)
     return {
-        "sequences": len(ok), "grasp_frames": int(tot["grasp"]),
-        "penetration_mean_mm": round(1000 * tot["pen"] / g, 3), "penetration_max_mm": round(1000 * pen_max, 3),
+        "sequences": len(ok),
+        "grasp_frames": int(tot["grasp"]),
+        "penetration_mean_mm": round(1000 * tot["pen"] / g, 3),
+        "penetration_max_mm": round(1000 * pen_max, 3),
         "thumb_finger_share": round(100 * tot["rule"] / g, 1),
         "pre_hold_near_frames_per_grasp": round(tot["pre_hold"] / max(tot["holds"], 1), 2),
-        "right_part_freq": {p: round(100 * parts[k] / max(tot["right_grasp"], 1), 1)
-                            for k, p in enumerate(HAND_PARTS)},
+        "right_part_freq": {
+            p: round(100 * parts[k] / max(tot["right_grasp"], 1), 1)
+            for k, p in enumerate(HAND_PARTS)
+        },
         "hand_use": {k: round(100 * used[k] / n, 1) for k in ("right", "left", "both")},
         "unsupported_object_moves": int(tot["unsupported"]),
         "min_hand_table_gap_mm": round(1000 * tot.get("table_gap_min", np.inf), 2)
-        if np.isfinite(tot.get("table_gap_min", np.inf)) else None,
+        if np.isfinite(tot.get("table_gap_min", np.inf))
+        else None,
     }
 
 
@@ -349,11 +357,14 @@ def format_report(rep: dict, manifest: dict) -> str:
         f"{c['sequences']} sequences ({c['frames']} frames, {c['objects']} objects), "
         f"{c['replaced']} replaced, {c['failed']} failed, {manifest['wall_time_s']} s",
         f"grasp frames (GT hand within 4.5 mm): {rep['grasp_frames']}",
-        f"penetration in grasp frames: mean {rep['penetration_mean_mm']} mm, max {rep['penetration_max_mm']} mm",
-        f"thumb + finger (two-hand: palm + 2 fingers) in contact: {rep['thumb_finger_share']}% of grasp frames",
+        f"penetration in grasp frames: mean {rep['penetration_mean_mm']} mm, "
+        f"max {rep['penetration_max_mm']} mm",
+        f"thumb + finger (two-hand: palm + 2 fingers) in contact: "
+        f"{rep['thumb_finger_share']}% of grasp frames",
         f"near-but-not-holding frames before each grasp: {rep['pre_hold_near_frames_per_grasp']}",
         f"object moves while unsupported: {rep['unsupported_object_moves']} frames",
-        f"hand clearance from the table top (negative: inside the 3 cm top): {rep['min_hand_table_gap_mm']} mm",
+        f"hand clearance from the table top (negative: inside the 3 cm top): "
+        f"{rep['min_hand_table_gap_mm']} mm",
         "right-hand contact frequency (% of grasp frames)   SynthGRAB   GRAB",
     ]
     for p in ("thumb", "index", "middle", "ring", "pinky", "palm"):

@@ -28,7 +28,7 @@ import torch
 
 from ...bodies.hand import ProceduralHand
 from ...bodies.layouts import HAND_PARTS
-from ...constants import CONTACT_THRESHOLD
+from ...core.constants import CONTACT_THRESHOLD
 from ...geometry.distance import DistanceField
 from ...geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
@@ -40,8 +40,12 @@ AVOID_CLEARANCE = 0.006  # m; gap kept to points to avoid (the other hand in a h
 # ring, pinky): people hold most objects with thumb and the first fingers; the palm and the
 # little finger join less often (GRAB: palm 24%, pinky 39% of grasp frames).
 PART_SCORE = np.array([0.1, 1.0, 1.0, 1.0, 0.6, -0.3])
-FLAT_HEIGHT = 0.04  # m; objects lower than this may also be pinched with ring and pinky out straight
-ROLLS = np.radians([0.0, -35.0, 35.0, -70.0, 70.0])  # wrist rolls about the approach tried per direction
+FLAT_HEIGHT = (
+    0.04  # m; objects lower than this may also be pinched with ring and pinky out straight
+)
+ROLLS = np.radians(
+    [0.0, -35.0, 35.0, -70.0, 70.0]
+)  # wrist rolls about the approach tried per direction
 SWEEP_STEPS = 10  # coarse flexion steps per joint level
 BISECT_STEPS = 4  # refinement halvings after the sweep (~0.6 deg at the end)
 
@@ -164,7 +168,8 @@ def _level_hands(side: str, scale: float) -> tuple[tuple[ProceduralHand, list[np
 
 
 class DistanceBound:
-    """A cheap lower bound of ``df.signed_distance`` (far="bound") to skip points far from the surface.
+    """A cheap lower bound of ``df.signed_distance`` (far="bound"), to skip points far from
+    the surface.
 
     Node values of the field on a coarse lattice (about 50 cells across the object, 4 mm at
     least, reaching 4 cm around the object's box), read at the nearest node, minus half a
@@ -175,7 +180,10 @@ class DistanceBound:
     """
 
     def __init__(self, df: DistanceField, mesh, margin: float = 0.04):
-        lo, hi = np.asarray(mesh.bounds[0], float) - margin, np.asarray(mesh.bounds[1], float) + margin
+        lo, hi = (
+            np.asarray(mesh.bounds[0], float) - margin,
+            np.asarray(mesh.bounds[1], float) + margin,
+        )
         self.h = max(0.004, float(np.max(mesh.extents)) / 50)
         self.shape = np.ceil((hi - lo) / self.h).astype(np.int64) + 1
         self.lo = lo
@@ -204,8 +212,18 @@ class DistanceBound:
 class GraspSynthesizer:
     """Finds grasps of one object for hands of one size (see module docstring)."""
 
-    def __init__(self, mesh, df: DistanceField, hand_scale: float, *, rest_height: float,
-                 grasp_hint: str, handles=(), large: bool = False, bound: DistanceBound | None = None):
+    def __init__(
+        self,
+        mesh,
+        df: DistanceField,
+        hand_scale: float,
+        *,
+        rest_height: float,
+        grasp_hint: str,
+        handles=(),
+        large: bool = False,
+        bound: DistanceBound | None = None,
+    ):
         self.mesh, self.df = mesh, df
         self.bound = DistanceBound(df, mesh) if bound is None else bound
         self.scale = float(hand_scale)
@@ -216,10 +234,20 @@ class GraspSynthesizer:
         self._axes = _principal_axes(np.asarray(mesh.vertices))
 
     # -- public -------------------------------------------------------------------
-    def search(self, side: str, approach_dirs: np.ndarray, finger_ref: np.ndarray,
-               rng: np.random.Generator, *, kind: str | None = None, target: np.ndarray | None = None,
-               above_table: bool = True, steep: bool | None = None,
-               avoid: np.ndarray | None = None, up: float = 1.0) -> Grasp | None:
+    def search(
+        self,
+        side: str,
+        approach_dirs: np.ndarray,
+        finger_ref: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        kind: str | None = None,
+        target: np.ndarray | None = None,
+        above_table: bool = True,
+        steep: bool | None = None,
+        avoid: np.ndarray | None = None,
+        up: float = 1.0,
+    ) -> Grasp | None:
         """Best grasp for ``side`` among candidates built from approach directions.
 
         approach_dirs (A, 3): unit object->hand directions (object frame) to try.
@@ -235,9 +263,15 @@ class GraspSynthesizer:
         Returns None if no candidate holds the object.
         """
         steep = above_table if steep is None else steep
-        dirs = self._steepen(np.asarray(approach_dirs, float)) if steep else np.asarray(approach_dirs, float)
+        dirs = (
+            self._steepen(np.asarray(approach_dirs, float))
+            if steep
+            else np.asarray(approach_dirs, float)
+        )
         for k in ([kind] if kind else self._kinds()):
-            grasp = self._search_kind(side, dirs, finger_ref, rng, k, target, above_table, avoid, up)
+            grasp = self._search_kind(
+                side, dirs, finger_ref, rng, k, target, above_table, avoid, up
+            )
             if grasp is not None:
                 return grasp
         return None
@@ -250,15 +284,33 @@ class GraspSynthesizer:
         if kind == "precision" and self.mesh.extents[1] < FLAT_HEIGHT:
             stages.append((ROLLS[:3], True, True))
         for rolls, wrap, flat in stages:
-            aim = np.array([target[0], self.pinch_height(target[1], up, True), target[2]]) if flat else target
-            grasp = self._search_rolls(side, dirs, finger_ref, rng, kind, aim, above_table, avoid, up,
-                                       rolls, wrap, flat)
+            aim = (
+                np.array([target[0], self.pinch_height(target[1], up, True), target[2]])
+                if flat
+                else target
+            )
+            grasp = self._search_rolls(
+                side, dirs, finger_ref, rng, kind, aim, above_table, avoid, up, rolls, wrap, flat
+            )
             if grasp is not None:
                 return grasp
         return None
 
-    def _search_rolls(self, side, dirs, finger_ref, rng, kind, target, above_table, avoid, up, rolls, wrap,
-                      flat=False):
+    def _search_rolls(
+        self,
+        side,
+        dirs,
+        finger_ref,
+        rng,
+        kind,
+        target,
+        above_table,
+        avoid,
+        up,
+        rolls,
+        wrap,
+        flat=False,
+    ):
         R, rolls = self._orientations(side, dirs, finger_ref, kind, rolls, wrap)
         full, ids, sub = _light_hand(side, self.scale)
         local0 = np.broadcast_to(preshape_local(kind, flat=flat), (len(R), 15, 3)).copy()
@@ -323,7 +375,9 @@ class GraspSynthesizer:
         flat = dirs * np.array([1.0, 0.0, 1.0])
         norm = np.linalg.norm(flat, axis=1, keepdims=True)
         flat = np.where(norm > 1e-6, flat / np.maximum(norm, 1e-9), np.array([0.0, 0.0, -1.0]))
-        extra = [np.cos(e) * flat + np.sin(e) * np.array([0.0, 1.0, 0.0]) for e in np.radians([60, 80])]
+        extra = [
+            np.cos(e) * flat + np.sin(e) * np.array([0.0, 1.0, 0.0]) for e in np.radians([60, 80])
+        ]
         return np.unique(np.round(np.vstack([dirs, *extra]), 6), axis=0)
 
     def _orientations(self, side, approach_dirs, finger_ref, kind, rolls=None, wrap: bool = True):
@@ -376,7 +430,8 @@ class GraspSynthesizer:
         return palm + 0.45 * (j[0, 5] - j[0, 4])  # a little towards the fingers
 
     def _place(self, sub, R, local, target, n, kind):
-        """Wrist positions (C, 3) after sphere-tracing each candidate along its palm normal ``n`` (C, 3).
+        """Wrist positions (C, 3) after sphere-tracing each candidate along its palm normal
+        ``n`` (C, 3).
 
         NaN rows: the hand passed the object without touching it.
         """
@@ -392,7 +447,11 @@ class GraspSynthesizer:
             if not len(act):
                 break
             pts = v0[act] + t[act, None]
-            clearance = self.df.signed_distance(pts.reshape(-1, 3), far="bound").reshape(len(act), -1).min(1)
+            clearance = (
+                self.df.signed_distance(pts.reshape(-1, 3), far="bound")
+                .reshape(len(act), -1)
+                .min(1)
+            )
             step = np.maximum(clearance - GAP, 0.0)
             done[act] |= step < 2e-4
             t[act] += n[act] * step[:, None]
@@ -402,7 +461,9 @@ class GraspSynthesizer:
         return t
 
     def _close(self, side, R, t, local0, kind):
-        """Flex every finger proximal to distal until contact or limit. Returns local poses (C, 15, 3)."""
+        """Flex every finger proximal to distal until contact or limit.
+
+        Returns local poses (C, 15, 3)."""
         levels = _level_hands(side, self.scale)
         lower, upper = levels[0][0].joint_limits.lower, levels[0][0].joint_limits.upper
         dirs = _close_dirs(kind)
@@ -451,12 +512,18 @@ class GraspSynthesizer:
         return np.stack([sd[:, m].min(1) < GAP for m in moving], 1)
 
     # -- scoring -----------------------------------------------------------------------
-    def _pick(self, full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid=None, up=1.0):
+    def _pick(
+        self, full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid=None, up=1.0
+    ):
         """Evaluate the closed candidates on the full hand and return the best valid one."""
         v, _ = _pose(full, R, t, local)
-        sd = self.bound.signed_distance(self.df, v.reshape(-1, 3), CONTACT_THRESHOLD).reshape(len(R), -1)
+        sd = self.bound.signed_distance(self.df, v.reshape(-1, 3), CONTACT_THRESHOLD).reshape(
+            len(R), -1
+        )
         parts = full.part_labels
-        near = np.stack([(sd[:, parts == p].min(1) <= CONTACT_THRESHOLD) for p in range(len(HAND_PARTS))], 1)
+        near = np.stack(
+            [(sd[:, parts == p].min(1) <= CONTACT_THRESHOLD) for p in range(len(HAND_PARTS))], 1
+        )
         pen = np.maximum(-sd.min(1), 0.0)
         n_fingers = near[:, 2:].sum(1)
         if kind == "bimanual":
@@ -497,7 +564,9 @@ def _clear_of(v: np.ndarray, avoid: np.ndarray | None) -> np.ndarray:
         return np.ones(len(v), bool)
     from scipy.spatial import cKDTree
 
-    d, _ = cKDTree(np.asarray(avoid, float)).query(v.reshape(-1, 3), distance_upper_bound=AVOID_CLEARANCE)
+    d, _ = cKDTree(np.asarray(avoid, float)).query(
+        v.reshape(-1, 3), distance_upper_bound=AVOID_CLEARANCE
+    )
     return np.isinf(d).reshape(len(v), -1).all(1)
 
 
@@ -527,7 +596,9 @@ def _principal_axes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _room(local_j: np.ndarray, d: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """Largest step along closing direction ``d`` keeping joint ``j`` in its limits (C,)."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        bound = np.where(d > 0, (upper - local_j) / d, np.where(d < 0, (lower - local_j) / d, np.inf))
+        bound = np.where(
+            d > 0, (upper - local_j) / d, np.where(d < 0, (lower - local_j) / d, np.inf)
+        )
     return np.clip(bound.min(1), 0.0, None)
 
 

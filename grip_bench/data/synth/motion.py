@@ -1,4 +1,4 @@
-"""Motion primitives for SynthGRAB: minimum-jerk paths, rotation blends, phase timelines.
+"""Motion primitives for SynthGRAB: minimum-jerk paths, rotation blends, axis rotations.
 
 Human reaching follows minimum-jerk profiles (Flash & Hogan 1985): position
 ``p(s) = p0 + (p1 - p0) (10 s^3 - 15 s^4 + 6 s^5)`` for normalised time ``s``.
@@ -7,8 +7,6 @@ All arrays are numpy float64; rotations are (..., 3, 3) matrices.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -57,7 +55,8 @@ def ease_warp(s: np.ndarray, ease: str = "both") -> np.ndarray:
 
 
 def slerp_path(r0: np.ndarray, r1: np.ndarray, n: int) -> np.ndarray:
-    """Rotations from ``r0`` to ``r1`` (3, 3) along the geodesic with the min-jerk warp. (n, 3, 3)."""
+    """Rotations (n, 3, 3) from ``r0`` to ``r1`` (3, 3) along the geodesic with the min-jerk
+    warp."""
     key = Rotation.from_matrix(np.stack([r0, r1]))
     w = min_jerk(np.linspace(0.0, 1.0, n))
     return Slerp([0.0, 1.0], key)(w).as_matrix()
@@ -69,53 +68,7 @@ def blend(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
     return (1.0 - w) * a[None] + w * b[None]
 
 
-@dataclass
-class Timeline:
-    """Named phases laid end to end at a frame rate; frames are counted from 0.
-
-    Consecutive phases share no frame: phase k covers ``[start_k, start_k + n_k)``.
-    """
-
-    fps: float
-    phases: list[tuple[str, int]] = field(default_factory=list)
-
-    def add(self, name: str, seconds: float) -> tuple[int, int]:
-        """Append a phase lasting ``seconds`` (at least 2 frames); return its frame span."""
-        n = max(2, int(round(seconds * self.fps)))
-        start = self.n_frames
-        self.phases.append((name, n))
-        return start, start + n
-
-    @property
-    def n_frames(self) -> int:
-        return sum(n for _, n in self.phases)
-
-    def span(self, name: str) -> tuple[int, int]:
-        """Frame span ``[a, b)`` of the first phase called ``name``."""
-        start = 0
-        for phase, n in self.phases:
-            if phase == name:
-                return start, start + n
-            start += n
-        raise KeyError(name)
-
-    def labels(self) -> list[str]:
-        """One phase name per frame."""
-        return [name for name, n in self.phases for _ in range(n)]
-
-
 def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
     """Rotation matrix (3, 3) of ``angle`` radians about ``axis``."""
     axis = np.asarray(axis, dtype=float)
     return Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
-
-
-def look_rotation(forward: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """Rotation whose columns are (right, up', forward) with ``forward`` exact. (3, 3)."""
-    f = forward / np.linalg.norm(forward)
-    r = np.cross(up, f)
-    if np.linalg.norm(r) < 1e-9:  # forward parallel to up: pick any perpendicular
-        r = np.cross(np.array([1.0, 0.0, 0.0]), f)
-    r /= np.linalg.norm(r)
-    u = np.cross(f, r)
-    return np.stack([r, u, f], axis=1)

@@ -24,13 +24,13 @@ import numpy as np
 import trimesh
 from manifold3d import CrossSection, JoinType, Manifold, OpType
 
-from ...constants import (
+from ...core.constants import (
     SYNTH_LARGE_EXTENT,
     SYNTH_OBJ_SEGMENTS,
     SYNTH_OBJ_SEGMENTS_LARGE,
     SYNTH_OBJ_SEGMENTS_SMALL,
 )
-from ...registry import Registry
+from ...core.registry import Registry
 
 GRASP_HINTS = ("power", "precision", "tripod", "lateral", "bimanual", "handle")
 
@@ -90,7 +90,8 @@ class ObjectFamily:
     def describe(self) -> str:
         lo, hi = self.size_range
         big = ", large (two hands)" if self.large else ""
-        return f"{self.note} [{lo * 100:.0f}-{hi * 100:.0f} cm, {self.grasp_hint}, {self.use_motion}{big}]"
+        size = f"{lo * 100:.0f}-{hi * 100:.0f} cm"
+        return f"{self.note} [{size}, {self.grasp_hint}, {self.use_motion}{big}]"
 
 
 @dataclass
@@ -650,49 +651,72 @@ def _families() -> list[ObjectFamily]:
              _cylinder, "power", "none", volume=_cylinder_volume, note="large cylinder"),
         _fam("can", (0.11, 0.125), {"diameter": (0.062, 0.068), "height": (0.11, 0.125)},
              _cylinder, "power", "drink", volume=_cylinder_volume, note="drink can"),
-        _fam("torussmall", (0.06, 0.08), {"ring_radius": (0.023, 0.03), "tube_radius": (0.007, 0.01)},
+        _fam("torussmall", (0.06, 0.08),
+             {"ring_radius": (0.023, 0.03), "tube_radius": (0.007, 0.01)},
              _torus, "precision", "none", volume=_torus_volume, genus=1, note="small ring"),
-        _fam("torusmedium", (0.09, 0.12), {"ring_radius": (0.035, 0.047), "tube_radius": (0.01, 0.013)},
+        _fam("torusmedium", (0.09, 0.12),
+             {"ring_radius": (0.035, 0.047), "tube_radius": (0.01, 0.013)},
              _torus, "power", "none", volume=_torus_volume, genus=1, note="donut-sized ring"),
-        _fam("toruslarge", (0.13, 0.17), {"ring_radius": (0.052, 0.068), "tube_radius": (0.013, 0.017)},
+        _fam("toruslarge", (0.13, 0.17),
+             {"ring_radius": (0.052, 0.068), "tube_radius": (0.013, 0.017)},
              _torus, "power", "none", volume=_torus_volume, genus=1, note="large ring"),
         _fam("apple", (0.065, 0.092), {"diameter": (0.068, 0.085)},
              _apple, "power", "eat", note="apple"),
-        _fam("banana", (0.15, 0.23), {"length": (0.15, 0.2), "diameter": (0.03, 0.037), "bend_rad": (0.8, 1.2)},
+        _fam("banana", (0.15, 0.23),
+             {"length": (0.15, 0.2), "diameter": (0.03, 0.037), "bend_rad": (0.8, 1.2)},
              _banana, "power", "eat", note="bent tapered tube"),
-        _fam("mug", (0.105, 0.14), {"radius": (0.038, 0.045), "height": (0.085, 0.105), "wall": _W, "handle_tube": (0.005, 0.0065)},
+        _fam("mug", (0.105, 0.14),
+             {"radius": (0.038, 0.045), "height": (0.085, 0.105), "wall": _W,
+              "handle_tube": (0.005, 0.0065)},
              _mug, "handle", "drink", genus=1, note="hollow mug with loop handle"),
-        _fam("cup", (0.085, 0.115), {"radius": (0.035, 0.042), "height": (0.085, 0.11), "wall": _W, "taper": (0.72, 0.85)},
+        _fam("cup", (0.085, 0.115),
+             {"radius": (0.035, 0.042), "height": (0.085, 0.11), "wall": _W, "taper": (0.72, 0.85)},
              _cup, "power", "drink", note="tapered cup"),
-        _fam("wineglass", (0.15, 0.21), {"foot_radius": (0.03, 0.037), "stem_radius": (0.0035, 0.0045), "stem_height": (0.07, 0.09), "bowl_radius": (0.036, 0.045), "bowl_height": (0.085, 0.11), "wall": (0.0025, 0.003)},
+        _fam("wineglass", (0.15, 0.21),
+             {"foot_radius": (0.03, 0.037), "stem_radius": (0.0035, 0.0045),
+              "stem_height": (0.07, 0.09), "bowl_radius": (0.036, 0.045),
+              "bowl_height": (0.085, 0.11), "wall": (0.0025, 0.003)},
              _wineglass, "precision", "drink", note="revolved stemmed glass"),
         _fam("waterbottle", (0.2, 0.26), {"diameter": (0.06, 0.075), "height": (0.2, 0.26)},
              _waterbottle, "power", "pour", note="closed bottle with cap"),
         _fam("bowl", (0.14, 0.18), {"diameter": (0.14, 0.18), "height": (0.05, 0.07), "wall": _W},
              _bowl, "power", "drink", note="hollow bowl"),
-        _fam("fryingpan", (0.29, 0.42), {"diameter": (0.17, 0.22), "height": (0.035, 0.05), "wall": _W, "handle_length": (0.14, 0.19)},
+        _fam("fryingpan", (0.29, 0.42),
+             {"diameter": (0.17, 0.22), "height": (0.035, 0.05), "wall": _W,
+              "handle_length": (0.14, 0.19)},
              _fryingpan, "handle", "cook", note="shallow pan with long handle"),
-        _fam("knife", (0.21, 0.31), {"blade_length": (0.11, 0.18), "blade_width": (0.022, 0.032), "handle_length": (0.1, 0.13), "blade_thickness": (0.0022, 0.003)},
+        _fam("knife", (0.21, 0.31),
+             {"blade_length": (0.11, 0.18), "blade_width": (0.022, 0.032),
+              "handle_length": (0.1, 0.13), "blade_thickness": (0.0022, 0.003)},
              _knife, "handle", "cut", note="kitchen knife"),
-        _fam("toothbrush", (0.16, 0.2), {"length": (0.165, 0.195), "bristle_height": (0.008, 0.011)},
+        _fam("toothbrush", (0.16, 0.2),
+             {"length": (0.165, 0.195), "bristle_height": (0.008, 0.011)},
              _toothbrush, "precision", "brush", note="toothbrush"),
-        _fam("toothpaste", (0.16, 0.23), {"diameter": (0.028, 0.036), "length": (0.13, 0.18), "cap_length": (0.012, 0.02)},
+        _fam("toothpaste", (0.16, 0.23),
+             {"diameter": (0.028, 0.036), "length": (0.13, 0.18), "cap_length": (0.012, 0.02)},
              _toothpaste, "power", "squeeze", note="crimped tube with cap"),
         _fam("flute", (0.26, 0.34), {"diameter": (0.018, 0.024), "length": (0.26, 0.34)},
              _flute, "precision", "play", note="rod with holes"),
-        _fam("camera", (0.105, 0.14), {"width": (0.105, 0.13), "depth": (0.035, 0.045), "height": (0.065, 0.08), "lens_radius": (0.02, 0.028), "lens_length": (0.02, 0.04)},
+        _fam("camera", (0.105, 0.14),
+             {"width": (0.105, 0.13), "depth": (0.035, 0.045), "height": (0.065, 0.08),
+              "lens_radius": (0.02, 0.028), "lens_length": (0.02, 0.04)},
              _camera, "power", "look", note="compact camera"),
-        _fam("binoculars", (0.11, 0.16), {"length": (0.11, 0.15), "barrel_radius": (0.02, 0.026), "separation": (0.062, 0.075)},
+        _fam("binoculars", (0.11, 0.16),
+             {"length": (0.11, 0.15), "barrel_radius": (0.02, 0.026), "separation": (0.062, 0.075)},
              _binoculars, "power", "look", note="two barrels and a hinge"),
-        _fam("elephant", (0.12, 0.2), {"length": (0.12, 0.19), "height_ratio": (0.85, 1.0), "width_ratio": (0.5, 0.6)},
+        _fam("elephant", (0.12, 0.2),
+             {"length": (0.12, 0.19), "height_ratio": (0.85, 1.0), "width_ratio": (0.5, 0.6)},
              _elephant, "power", "none", note="toy elephant"),
-        _fam("boxlarge", (lo_l, 0.45), {"size_x": (0.3, 0.45), "size_y": (0.2, 0.3), "size_z": (0.18, 0.28)},
+        _fam("boxlarge", (lo_l, 0.45),
+             {"size_x": (0.3, 0.45), "size_y": (0.2, 0.3), "size_z": (0.18, 0.28)},
              _box, "bimanual", "none", large=True, volume=_box_volume, note="storage box"),
-        _fam("basin", (0.31, hi_l), {"diameter": (0.32, 0.45), "height": (0.1, 0.16), "wall": (0.004, 0.005)},
+        _fam("basin", (0.31, hi_l),
+             {"diameter": (0.32, 0.45), "height": (0.1, 0.16), "wall": (0.004, 0.005)},
              _bowl, "bimanual", "pour", large=True, note="large hollow basin"),
         _fam("balllarge", (lo_l, 0.4), {"diameter": (0.3, 0.4)},
              _sphere, "bimanual", "none", large=True, volume=_sphere_volume, note="big ball"),
-        _fam("pot", (lo_l, 0.42), {"diameter": (0.24, 0.32), "height": (0.14, 0.2), "wall": (0.004, 0.005)},
+        _fam("pot", (lo_l, 0.42),
+             {"diameter": (0.24, 0.32), "height": (0.14, 0.2), "wall": (0.004, 0.005)},
              _pot, "bimanual", "pour", large=True, genus=2, note="pot with two handles"),
     ]
     # fmt: on

@@ -1,7 +1,7 @@
 """SynthGRAB's cast and stage: subjects, generation profiles, intents, table placement.
 
-Everything here is data plus small seeded draws; the motion itself lives in
-:mod:`grip_bench.data.synth.episode`.
+Everything here is data plus small seeded draws; the motion itself is made by
+:mod:`grip_bench.data.synth.episode` and the modules it drives.
 """
 
 from __future__ import annotations
@@ -46,7 +46,8 @@ class Subject:
 
 
 def make_subjects(n: int, seed: int) -> list[Subject]:
-    """``n`` subjects spread over the stature range; about 1 in 8 left-handed (at least one if n >= 8)."""
+    """``n`` subjects spread over the stature range; about 1 in 8 left-handed (at least one if
+    n >= 8)."""
     rng = np.random.default_rng([seed, 7001])
     heights = np.linspace(*HEIGHT_RANGE, n)
     rng.shuffle(heights)
@@ -85,7 +86,6 @@ class Stage:
 
     table_height: float  # m, top surface
     table_front: float  # m, z of the table edge facing the subject
-    table_size: tuple[float, float]  # (width along x, depth along z)
     object_xz: tuple[float, float]  # object centre on the table
     object_yaw: float  # rad, about +y
 
@@ -94,9 +94,8 @@ def draw_stage(rng: np.random.Generator, subject: Subject, obj_radius: float, la
     """A table in front of the subject with the object placed within comfortable reach."""
     h = float(rng.uniform(*TABLE_HEIGHT_RANGE))
     front = 0.22 + 0.05 * subject.height / 1.76
-    depth = 0.6
     reach_z = front + max(0.08, obj_radius) + float(rng.uniform(0.02, 0.1))
     # Offset the object slightly toward the dominant side (people place things there).
     side = -1.0 if subject.handedness == "right" else 1.0
     x = 0.0 if large else side * float(rng.uniform(0.0, 0.15))
-    return Stage(h, front, (1.2, depth), (x, reach_z), float(rng.uniform(-np.pi, np.pi)))
+    return Stage(h, front, (x, reach_z), float(rng.uniform(-np.pi, np.pi)))

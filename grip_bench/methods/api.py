@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from ..registry import Registry
+from ..core.registry import Registry
 
 # What a method may need at prediction time (documented in ``ls methods``).
 NEEDS = {
@@ -31,14 +31,34 @@ NEEDS = {
 
 @dataclass
 class PredictContext:
-    """What ``predict`` may use besides the input sequence."""
+    """What ``predict`` may use besides the input sequence (one typed field per fact)."""
 
     library: Any  # grip_bench.data.library.ObjectLibrary of the input's dataset
     device: str = "cpu"
     seed: int = 0
     future_frames: int | None = None  # override of the method's default, if it has one
     online: bool = False  # frame-by-frame streaming using only past frames
-    extra: dict = field(default_factory=dict)
+    refine: bool = False  # refine the given (perturbed) hands instead of generating (Table 3)
+    use_anet: bool = True  # GRIP: denoise the arm motion (False: keep the input wrists)
+    precision: str = "fp32"  # arithmetic of the networks where a method offers a choice
+    data_dir: Path | None = None  # the clean dataset (retrieval methods read its train split)
+    split: str = "test"  # the split being predicted
+    perturbation: str = "none"  # the test set's perturbation label ("none": clean)
+    # GrabNet-style: grasp frames to place grasps at, per side ((T,) bool); None: its own
+    grasp_frames: dict[str, Any] | None = None
+
+
+@dataclass
+class TrainContext:
+    """What ``train`` may use besides the data folder and the output path."""
+
+    profile: dict  # the loaded profile (grip_bench.profiles.load_profile)
+    seed: int = 0
+    device: str = "cpu"
+    progress: bool = True
+    # a folder shared by the runs of one code version where a method may cache what does
+    # not depend on its variant (GRIP's sensor features and ANet); None: beside ``out``
+    feature_cache: Path | None = None
 
 
 class Method(Protocol):
@@ -46,13 +66,13 @@ class Method(Protocol):
 
     name: str
 
-    def train(self, data_dir: Path, out: Path, *, profile: dict, seed: int = 0,
-              device: str = "cpu", progress: bool = True) -> Path:
-        """Train on ``data_dir``'s train split (validate on val) and write a checkpoint to ``out``."""
+    def train(self, data_dir: Path, out: Path, ctx: TrainContext) -> Path:
+        """Train on ``data_dir``'s train split (validate on val); write a checkpoint to ``out``."""
         ...
 
     def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
-        """Load a checkpoint written by :meth:`train` (``None`` for methods without weights)."""
+        """Load a checkpoint written by :meth:`train` (``None`` for methods without weights)
+        and move the method's networks to ``device``."""
         ...
 
     def predict(self, seq, ctx: PredictContext):
@@ -62,13 +82,16 @@ class Method(Protocol):
 
 @dataclass(frozen=True)
 class MethodSpec:
-    """A registered method: name, one-line description, needs, tables, and how to build it."""
+    """Every fact about a registered method, and how to build it.
+
+    Which tables show a method is not stored here: the table files
+    (``grip_bench/report/tables/*.toml``) are the one home of that fact.
+    """
 
     name: str
     description: str
-    factory: Any  # callable(**options) -> Method
+    factory: Any  # callable(name=..., **options) -> Method
     needs: tuple[str, ...] = ("object",)
-    tables: tuple[str, ...] = ()
     trainable: bool = True
     options: dict = field(default_factory=dict)  # passed to the factory (variant switches)
     # hands the method predicts; any other hand is returned as given (the input), so the
@@ -83,15 +106,22 @@ class MethodSpec:
     # rough prediction time per sequence relative to GRIP (1.0); `run` starts the slowest
     # prediction units first so that no long unit is left alone at the end of the stage
     predict_cost: float = 1.0
+    # whether ``predict`` honours ``ctx.online`` (causal frame-by-frame streaming)
+    supports_online: bool = False
+    # a reference row (ground truth, the perturbed input, flat hand, mean pose): shown for
+    # comparison, never ranked as a method
+    reference: bool = False
+    # bump when the method's outputs change for the same code digest (part of cache keys)
+    version: str = "1"
 
     def build(self) -> Method:
         return self.factory(name=self.name, **self.options)
 
-    def describe(self) -> str:
+    def describe(self, tables: tuple[str, ...] = ()) -> str:
         kind = "train" if self.trainable else "fixed"
-        tables = ",".join(self.tables) or "-"
+        shown = ",".join(tables) or "-"
         needs = ",".join(self.needs)
-        return f"{self.name:20s} {kind:5s} needs={needs:28s} tables={tables:30s} {self.description}"
+        return f"{self.name:20s} {kind:5s} needs={needs:28s} tables={shown:30s} {self.description}"
 
 
 METHODS: Registry[MethodSpec] = Registry("method")
@@ -123,3 +153,8 @@ def variants() -> set[str]:
 def predicted_hands() -> dict[str, tuple[str, ...]]:
     """{method: hands it predicts} for every registered method (imports the method modules)."""
     return {name: METHODS.get(name).hands for name in load_all().names()}
+
+
+def reference_rows() -> tuple[str, ...]:
+    """Registered reference rows (``MethodSpec.reference``), in registration order."""
+    return tuple(name for name in load_all().names() if METHODS.get(name).reference)

@@ -6,9 +6,8 @@ Units inside the suite are metres, radians, seconds, kilograms. Reports convert.
 # --- Frame rates -------------------------------------------------------------
 GRAB_FPS = 120.0  # GRAB motion capture rate
 FPS = 30.0  # the suite's working rate (GRAB subsampled by 4)
-GRAB_SUBSAMPLE = 4
 
-# --- Contact definitions (DESIGN 5) -----------------------------------------
+# --- Contact definitions (docs/contract.md, "Definitions") ---------------------------
 CONTACT_THRESHOLD = 0.0045  # m; GRAB's contact distance, defines grasp frames
 CC_THRESHOLD = 0.002  # m; GRIP code's contact-consistency vertex selection
 
@@ -22,8 +21,6 @@ FUTURE_FRAMES = 10
 
 # --- Hand anatomy ------------------------------------------------------------
 HAND_LENGTH = 0.19  # m, default adult hand length (wrist crease to middle tip)
-N_HAND_JOINTS = 16  # MANO: wrist + 15 finger joints
-N_HAND_KEYPOINTS = 21  # + 5 fingertips
 
 # --- Geometry tolerances -----------------------------------------------------
 MERGE_TOL = 1e-8  # m; duplicate-vertex merge distance for loaded meshes
@@ -43,7 +40,6 @@ SIM_HOLD_SECONDS = 1.0
 GRAVITY = 9.81
 
 # --- Rotations ---------------------------------------------------------------
-ROT_EPS = 1e-6  # small-angle switch for series expansions
 
 # --- World frame --------------------------------------------------------------
 UP = (0.0, 1.0, 0.0)  # SynthGRAB / procedural body: y up, body faces +z
@@ -53,15 +49,19 @@ UP = (0.0, 1.0, 0.0)  # SynthGRAB / procedural body: y up, body faces +z
 # in t^2 (truncation error < 1e-16 here), keeping values and gradients smooth at 0 in
 # float32 too, where ROT_EPS = 1e-6 would leave cancellation in the autograd formula.
 ROT_SERIES_ANGLE = 1e-2
-MAX_HOLE_FRACTION = 0.15  # holes with perimeter up to this share of the bbox diagonal get fan-closed
+MAX_HOLE_FRACTION = (
+    0.15  # holes with perimeter up to this share of the bbox diagonal get fan-closed
+)
 FLAT_TOL = 1e-6  # relative; thinnest/largest vertex spread (and volume/extent^3) below = flat
 SDF_EXACT_DEPTH = 0.02  # m; the grid holds exact node values within this distance of the surface
 SDF_COARSE_FACTOR = 4  # coarse grid (fills nodes beyond SDF_EXACT_DEPTH) = this x the spacing
 SDF_BARY_TOL = 1e-7  # barycentric coordinate below which a closest point sits on an edge/vertex
-SDF_KINK_TOL = 0.25e-3  # m; cells whose estimated trilinear error (spacing * gradient spread / 4) exceeds this use the exact path
+# m; cells whose estimated trilinear error (spacing * gradient spread / 4) exceeds this use the
+# exact path
+SDF_KINK_TOL = 0.25e-3
 
 # --- grip nets ---------------------------------------------------------------
-# Paper-scale sizes of GRIP's networks (DESIGN 5, "Networks"; GRIP Sec. 3.4-3.6).
+# Paper-scale sizes of GRIP's networks (docs/contract.md, "Definitions"; GRIP Sec. 3.4-3.6).
 GRIP_HIDDEN = 2048  # inner width of a residual block
 GRIP_WIDTH = 1024  # width between residual blocks
 GRIP_LATENT = 256  # CNet / ANet latent code per frame
@@ -82,7 +82,6 @@ MAX_AXIS_ANGLE = 12.6  # rad (~4 pi); larger rotation vectors look like degrees
 SUBJECT_HEIGHT_RANGE = (0.5, 2.6)  # m; outside looks like centimetres or a typo
 HAND_SCALE_RANGE = (0.3, 3.0)  # multiplier of HAND_LENGTH
 N_HAND_POSE = 45  # full MANO finger pose, 15 joints x axis-angle
-GRAB_N_COMPS = 24  # GRAB's released hand poses are 24 MANO PCA coefficients
 # TOCH protocol (GRAB-T, GRAB-R) and GRIP's ANet arm noise, per frame, i.i.d. Gaussian.
 TOCH_T_SIGMAS = (0.01, 0.02)  # m, hand translation
 TOCH_R_SIGMAS = (0.3, 0.5)  # rad, each hand-joint axis-angle component
@@ -108,8 +107,12 @@ SIM_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)  # impedance ramps to 0.99 within 1 m
 SIM_IMPRATIO = 10.0  # elliptic cones: friction stiffer than normal force, less creep in a hold
 SIM_MAX_SPEED = 50.0  # m/s; 1 s of free fall reaches 9.8 m/s, anything far beyond has diverged
 SIM_HAND_PIECE_POINTS = 120  # vertices per convex hand piece (bones are split into clusters)
-SIM_CONTACT_MARGIN = 0.001  # m; skin compliance: contacts act within 1 mm (see physics._contact_params)
-SIM_MIN_PIECE_VOLUME = 1e-10  # m^3 (0.1 mm^3); flatter convex pieces are dropped (MuJoCo rejects them)
+SIM_CONTACT_MARGIN = (
+    0.001  # m; skin compliance: contacts act within 1 mm (see physics._contact_params)
+)
+SIM_MIN_PIECE_VOLUME = (
+    1e-10  # m^3 (0.1 mm^3); flatter convex pieces are dropped (MuJoCo rejects them)
+)
 SIM_CONVEX_TOL = 0.01  # a mesh within 1% of its hull volume is used as one convex piece
 SIM_COACD_THRESHOLD = 0.05  # CoACD concavity; 0.1 leaves a bowl's pieces 40% overfull
 SIM_COACD_MAX_HULLS = -1  # no cap: the threshold decides
@@ -124,7 +127,7 @@ SYNTH_OBJ_SEGMENTS_SMALL = 12  # stems, buttons, handle tubes, rim rounds
 SYNTH_LARGE_EXTENT = (0.30, 0.50)  # m; largest extent of two-handed SynthGRAB objects
 
 # --- bench ---
-# Stratified bootstrap over sequences (grip_bench.bench.stats), rliable-style percentile CI.
+# Stratified bootstrap over sequences (grip_bench.results.stats), rliable-style percentile CI.
 BOOTSTRAP_N = 2000  # resamples; Monte-Carlo error of a 95% bound is ~1% of the CI width
 BOOTSTRAP_ALPHA = 0.05  # 95% intervals
 BOOTSTRAP_SEED = 0
@@ -163,9 +166,12 @@ ANET_CHUNK = 16  # offline ANet: output frames per piece of the recursion (grip.
 ANET_WARMUP = 8  # frames each piece starts early, so its start is forgotten by its first output
 AMBIENT_SEED = 0  # the one fixed hemisphere sample shared by training and inference
 AMBIENT_MIDDLE_JOINT = 4  # MANO middle1: the hemisphere's centre on the relaxed mean hand
-VOXEL_CELLS = (13, 6, 13)  # voxel ambient grid (x, palm-normal, z) over the hemisphere's box: 1014 cells
+VOXEL_CELLS = (
+    13,
+    6,
+    13,
+)  # voxel ambient grid (x, palm-normal, z) over the hemisphere's box: 1014 cells
 INTERACTION_DISTANCE = 0.02  # m; RNet refines frames whose hand is within this of the object
-RNET_POSE_SIGMA = 0.3  # rad; Gaussian axis-angle noise of RNet's synthetic data (GRIP Sup. 6)
 
 # --- evaluate ---
 # grip_bench.metrics.evaluate: per-sequence aggregation of the metric functions.
@@ -185,9 +191,6 @@ SDF_FAR_TIERS = ((0.006, 0.1), (0.025, 0.7))
 # --- run ---
 # grip-bench run (grip_bench.bench.runner); profiles' [run] sections override these.
 RUN_DEFAULT_OUT = "runs"  # OUT defaults to runs/<profile>
-RUN_PERTURBATIONS = ("T0.01", "T0.02", "R0.3", "R0.5")  # GRAB-T (m) and GRAB-R (rad), TOCH
-RUNTIME_SEQUENCES = 2  # test sequences timed per method (after one untimed warm-up call)
-RUNTIME_REPEATS = 3  # timed passes per method and mode (rows of runtime.csv)
 RUN_FIGURE_METHODS = ("grip",)  # methods drawn beside ground truth in contact heatmaps
 
 # --- baselines methods ---

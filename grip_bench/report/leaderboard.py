@@ -1,4 +1,6 @@
-"""Leaderboard (DESIGN 4.3): one line per (method, metric, hand) with a 95% bootstrap interval.
+"""Leaderboard: one line per (method, metric, hand) with a 95% bootstrap interval.
+
+Columns: docs/contract.md, "Results".
 
 Values are averaged per sequence first (repeats and, for ``hand = "mean"`` tables, hands),
 then over sequences; the interval resamples sequences within each object (stratified,
@@ -17,11 +19,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..constants import BOOTSTRAP_N, BOOTSTRAP_SEED
-from ..errors import InputError
-from .cache import atomic_write_text
-from .results import format_float
-from .stats import CI, sequence_ci
+from ..core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED
+from ..core.errors import InputError
+from ..core.io import atomic_write_text
+from ..results.schema import format_float
+from ..results.stats import CI, sequence_ci
 from .tables import (
     HAND_LABELS,
     Cell,
@@ -34,8 +36,6 @@ from .tables import (
 
 LEADERBOARD_COLUMNS = ("method", "metric", "hand", "value", "ci_low", "ci_high", "unit",
                        "higher_is_better", "n_sequences")
-# Rows that bound the scale rather than compete: never marked best in rendered leaderboards.
-REFERENCE_METHODS = ("gt", "perturbed-input")
 _HAND_ORDER = {"right": 0, "left": 1, "both": 2}
 
 
@@ -104,7 +104,8 @@ def leaderboard(results_df: pd.DataFrame, metrics_registry=None, seed: int = BOO
 
 # --- writers --------------------------------------------------------------------------------
 def leaderboard_csv_text(lb: pd.DataFrame) -> str:
-    """``leaderboard.csv`` text: DESIGN 4.3 columns, round-trip floats, true/false/empty."""
+    """``leaderboard.csv`` text (docs/contract.md, "Results"): round-trip floats,
+    true/false/empty."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(LEADERBOARD_COLUMNS)
@@ -121,15 +122,23 @@ def write_leaderboard_csv(lb: pd.DataFrame, path: str | os.PathLike) -> Path:
 
 
 def _metric_order(lb: pd.DataFrame, registry) -> list[str]:
-    """Registry order first (the order of DESIGN 5), unknown metrics alphabetically after."""
+    """Registry order first (docs/contract.md, "Definitions"), unknown metrics alphabetically
+    after."""
     known = registry.names() if registry is not None else []
     present = set(lb["metric"])
     return [m for m in known if m in present] + sorted(present - set(known))
 
 
 def leaderboard_table(lb: pd.DataFrame, metrics_registry=None, title: str = "Leaderboard",
-                      reference_methods: Sequence[str] = REFERENCE_METHODS) -> TableData:
-    """The leaderboard as a wide table (methods x metric/hand) for the shared renderers."""
+                      reference_methods: Sequence[str] | None = None) -> TableData:
+    """The leaderboard as a wide table (methods x metric/hand) for the shared renderers.
+
+    ``reference_methods``: rows never marked best (None: the registered methods whose
+    ``MethodSpec.reference`` is set)."""
+    if reference_methods is None:
+        from ..methods.api import reference_rows
+
+        reference_methods = reference_rows()
     registry = metrics_registry if metrics_registry is not None else default_metric_registry()
     keys = [(m, h) for m in _metric_order(lb, registry)
             for h in sorted(set(lb.loc[lb["metric"] == m, "hand"]),
@@ -183,7 +192,7 @@ _HAND_TITLES = {"right": "right hand", "left": "left hand", "both": "both hands"
 
 def write_leaderboard_md(lb: pd.DataFrame, path: str | os.PathLike, metrics_registry=None,
                          title: str = "Leaderboard") -> Path:
-    from ..report.render import to_markdown
+    from .render import to_markdown
 
     parts = [to_markdown(t, heading_level=2)
              for t in leaderboard_tables(lb, metrics_registry, title)]
@@ -195,7 +204,7 @@ def write_leaderboard_html(lb: pd.DataFrame, path: str | os.PathLike,
                            title: str = "grip-bench leaderboard",
                            extra_tables: Sequence[TableData] = ()) -> Path:
     """Self-contained sortable page: the leaderboard, optional paper tables, PNG figures."""
-    from ..report.render import html_page, table_html
+    from .render import html_page, table_html
 
     fragments = [table_html(t) for t in leaderboard_tables(lb, metrics_registry, "Leaderboard")]
     fragments += [table_html(t) for t in extra_tables]

@@ -1,4 +1,4 @@
-"""Run manifest (DESIGN 4.3): what produced a report, so a number can be traced back.
+"""Run manifest (docs/contract.md, "Results"): what produced a report, so a number can be traced.
 
 Versions of the suite and its key dependencies, git revision (and whether the tree had
 uncommitted changes), platform, profile and config, seeds, data hash, wall time per stage.
@@ -15,9 +15,9 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-from .. import __version__
-from ..errors import InputError
-from .cache import atomic_write_text, jsonable
+from ..core.errors import InputError
+from ..core.io import atomic_write_text, jsonable
+from ..core.version import __version__
 
 MANIFEST_SCHEMA = 1
 # distribution names (as pip knows them), reported as-is; missing ones are null

@@ -1,4 +1,6 @@
-"""Typed results schema (DESIGN 4.3): ``results.csv`` and ``frames.csv``, tidy and deterministic.
+"""Typed results schema: ``results.csv`` and ``frames.csv``, tidy and deterministic.
+
+Columns: docs/contract.md, "Results".
 
 One row per (method, dataset, split, perturbation, sequence, hand, metric); ``frames.csv``
 adds ``frame``. ``value`` is in the metric's REPORT unit (mm, cm3, %), named in ``unit``;
@@ -23,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError
-from .cache import atomic_write_text
+from ..core.errors import InputError
+from ..core.io import atomic_write_text
 
 STR_COLUMNS = ("method", "dataset", "split", "perturbation", "sequence", "object", "hand",
                "metric", "unit")
@@ -193,7 +195,10 @@ def to_csv_text(df: pd.DataFrame) -> str:
 
 
 def write_results(rows: Iterable[ResultRow] | pd.DataFrame, path: str | os.PathLike) -> Path:
-    """Validate and write ``results.csv`` (or ``frames.csv`` when rows carry ``frame``) atomically."""
+    """Validate and write ``results.csv`` atomically.
+
+    ``frames.csv`` when the rows carry ``frame``.
+    """
     df = validate(to_frame(rows), where=path)
     return atomic_write_text(path, to_csv_text(df))
 

@@ -14,9 +14,7 @@ memory) and compares keys and shapes, so a wrong file fails with a readable
 from __future__ import annotations
 
 import dataclasses
-import os
 import pickle
-import tempfile
 import typing
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -24,8 +22,10 @@ from pathlib import Path
 
 import torch
 
-import grip_bench
-from grip_bench.errors import InputError, UnsafeFileError
+from grip_bench.core.errors import InputError, UnsafeFileError
+
+from .io import atomic_file
+from .version import __version__
 
 FORMAT = "grip-bench-checkpoint/1"
 # Exact types: subclasses (torch.__version__ is a TorchVersion str) pickle as classes that
@@ -67,22 +67,13 @@ def save_checkpoint(path, *, model_state: dict, configs: dict, meta: dict | None
         "configs": {name: dataclasses.asdict(cfg) for name, cfg in configs.items()},
         "meta": {
             **(meta or {}),
-            "suite_version": grip_bench.__version__,
+            "suite_version": __version__,
             "torch_version": str(torch.__version__),
         },
     }
     _check_plain(payload, str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(payload, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)  # readers see the old file or the new one, never half of one
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_file(path) as f:
+        torch.save(payload, f)
     return path
 
 
@@ -174,7 +165,8 @@ def _check_state(cfg, state: dict, where: str) -> None:
             raise InputError(f"{key} is a {type(value).__name__}, not a tensor", where=where)
         if value.shape != ref.shape:
             raise InputError(
-                f"shape mismatch for {key}: checkpoint {tuple(value.shape)}, model {tuple(ref.shape)}",
+                f"shape mismatch for {key}: checkpoint {tuple(value.shape)}, "
+                f"model {tuple(ref.shape)}",
                 where=where,
             )
 

@@ -128,7 +128,10 @@ class RestrictedUnpickler(pickle.Unpickler):
             return ChumpyArray
         if self.allow_sparse and (module, name) in _SPARSE:
             return _make_sparse_factory(name)
-        if (self.allow_chumpy or self.allow_sparse) and (module, name) == ("copyreg", "_reconstructor"):
+        if (self.allow_chumpy or self.allow_sparse) and (module, name) == (
+            "copyreg",
+            "_reconstructor",
+        ):
             return _reconstructor
         if (self.allow_chumpy or self.allow_sparse) and (module, name) == ("builtins", "object"):
             return object
@@ -240,7 +243,9 @@ def load_npz(path: str | os.PathLike) -> dict[str, Any]:
             except GripBenchError:
                 raise
             except Exception as e:  # noqa: BLE001 - any parse failure of untrusted bytes
-                raise InputError(f"corrupt array ({type(e).__name__}: {e})", f"{path}: {key}") from e
+                raise InputError(
+                    f"corrupt array ({type(e).__name__}: {e})", f"{path}: {key}"
+                ) from e
             if isinstance(arr, np.ndarray) and arr.dtype.hasobject and arr.shape == ():
                 arr = arr.item()
             out[key] = arr

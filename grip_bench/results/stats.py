@@ -17,8 +17,8 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from ..constants import BOOTSTRAP_ALPHA, BOOTSTRAP_CHUNK, BOOTSTRAP_N, BOOTSTRAP_SEED
-from ..errors import InputError
+from ..core.constants import BOOTSTRAP_ALPHA, BOOTSTRAP_CHUNK, BOOTSTRAP_N, BOOTSTRAP_SEED
+from ..core.errors import InputError
 
 
 class CI(NamedTuple):
@@ -57,7 +57,9 @@ def _layout(v: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     return v, starts[codes], sizes[codes]
 
 
-def bootstrap_means(values, strata=None, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED) -> np.ndarray:
+def bootstrap_means(
+    values, strata=None, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED
+) -> np.ndarray:
     """``(n_boot,)`` stratified-bootstrap means of the finite ``values``.
 
     Drawn in chunks of about ``BOOTSTRAP_CHUNK`` indices (bounded memory). The generator

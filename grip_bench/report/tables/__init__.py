@@ -34,10 +34,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ...constants import BOOTSTRAP_N, BOOTSTRAP_SEED, REPORT_DECIMALS
-from ...errors import InputError
-from ...registry import Registry
-from ..stats import CI, bootstrap_ci, sequence_ci
+from ...core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED, REPORT_DECIMALS
+from ...core.errors import InputError
+from ...core.registry import Registry
+from ...results.stats import CI, bootstrap_ci, sequence_ci
 
 FILTER_KEYS = ("method", "dataset", "split", "perturbation", "metric", "hand")
 SOURCES = ("results", "runtime")
@@ -45,9 +45,20 @@ RUNTIME_FIELDS = ("seconds_per_frame", "frames_per_second")
 HAND_LABELS = {"right": "R-Hand", "left": "L-Hand", "both": "Both hands", "mean": ""}
 MEAN_HAND = "mean"
 
-_TABLE_KEYS = {"id": str, "version": int, "order": int, "title": str, "description": str, "notes": list,
-               "source": str, "row_header": str, "defaults": dict, "before": dict,
-               "rows": list, "columns": list}
+_TABLE_KEYS = {
+    "id": str,
+    "version": int,
+    "order": int,
+    "title": str,
+    "description": str,
+    "notes": list,
+    "source": str,
+    "row_header": str,
+    "defaults": dict,
+    "before": dict,
+    "rows": list,
+    "columns": list,
+}
 _TABLE_REQUIRED = ("id", "version", "title", "description", "rows", "columns")
 _ROW_KEYS = {"label": str, "group": str, "reference": bool, "mode": str,
              **{k: str for k in FILTER_KEYS}}
@@ -83,7 +94,7 @@ class ColumnSpec:
 
 @dataclass(frozen=True)
 class TableSpec:
-    """A table definition loaded from ``grip_bench/bench/tables/<id>.toml``."""
+    """A table definition loaded from ``grip_bench/report/tables/<id>.toml``."""
 
     id: str
     version: int
@@ -398,9 +409,16 @@ def _row_group_info(spec: TableSpec, row: RowSpec, registry) -> tuple[str | None
     return unit, hib
 
 
-def compute_table(spec: TableSpec, results: pd.DataFrame | None = None,
-                  runtime: pd.DataFrame | None = None, *, dataset: str | None = None,
-                  metrics_registry=None, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED) -> TableData:
+def compute_table(
+    spec: TableSpec,
+    results: pd.DataFrame | None = None,
+    runtime: pd.DataFrame | None = None,
+    *,
+    dataset: str | None = None,
+    metrics_registry=None,
+    n_boot: int = BOOTSTRAP_N,
+    seed: int = BOOTSTRAP_SEED,
+) -> TableData:
     """Fill ``spec`` from validated results (or runtime) frames; missing cells stay empty."""
     registry = metrics_registry if metrics_registry is not None else default_metric_registry()
     columns = tuple(_column_header(spec, c, registry) for c in spec.columns)

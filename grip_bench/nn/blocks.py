@@ -1,8 +1,8 @@
 """Residual MLP building blocks shared by GRIP's networks (ANet, CNet, RNet).
 
 A residual block is Linear-BN-LeakyReLU-Dropout-Linear-BN plus a skip, then LeakyReLU
-(DESIGN 5, "Networks"). BatchNorm1d normalises over (N, C), so every module here accepts
-``(..., C)`` and flattens the leading dimensions (batch x time) into N.
+(docs/contract.md, "Definitions", networks). BatchNorm1d normalises over (N, C), so every
+module here accepts ``(..., C)`` and flattens the leading dimensions (batch x time) into N.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import dataclasses
 import torch
 from torch import nn
 
-from grip_bench.constants import GRIP_DROPOUT, GRIP_LEAKY_SLOPE
-from grip_bench.errors import InputError
+from grip_bench.core.constants import GRIP_DROPOUT, GRIP_LEAKY_SLOPE
+from grip_bench.core.errors import InputError
 
 
 def flat_apply(fn, x: torch.Tensor) -> torch.Tensor:

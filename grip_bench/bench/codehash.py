@@ -1,0 +1,131 @@
+"""Digests of the code a work unit runs: the transitive import closure of its entry modules.
+
+A unit's cache key must change when, and only when, code that produces its content
+changes. Hashing one folder (the old way) missed code the unit imports from elsewhere
+(``sensors.py`` for GRIP, ``geometry/distance.py`` for the metrics) and re-ran units for
+edits they never execute. Here the key covers the bytes of every module the unit's entry
+modules import, directly or not, read from the source with :mod:`ast` (imports inside
+functions included, ``if TYPE_CHECKING:`` blocks excluded), plus the ``__init__.py`` of
+every package on the way, since importing a module runs them.
+
+Methods are found through the registry by name (``importlib``), so a unit that runs a
+method names the method's module as an entry itself (``bench.plan``).
+
+The index reads files under given package roots, so a test can point it at a temporary
+copy of the source tree, edit a file there and see which keys move.
+"""
+
+from __future__ import annotations
+
+import ast
+import functools
+import hashlib
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+ROOT_PACKAGES = ("grip_bench", "grip_baselines")
+
+
+def installed_roots() -> dict[str, Path]:
+    """``{top package: folder}`` of the importable ``grip_bench`` and ``grip_baselines``."""
+    import importlib
+
+    return {name: Path(importlib.import_module(name).__file__).parent for name in ROOT_PACKAGES}
+
+
+class CodeIndex:
+    """Module files and their internal imports under ``roots`` (``{package: folder}``)."""
+
+    def __init__(self, roots: Mapping[str, Path]):
+        self.files: dict[str, Path] = {}
+        self.packages: set[str] = set()
+        for top, folder in roots.items():
+            for path in sorted(Path(folder).rglob("*.py")):
+                parts = [top, *path.relative_to(folder).with_suffix("").parts]
+                if parts[-1] == "__init__":
+                    parts = parts[:-1]
+                    self.packages.add(".".join(parts))
+                self.files[".".join(parts)] = path
+        self._imports: dict[str, frozenset[str]] = {}
+
+    @classmethod
+    @functools.cache
+    def installed(cls) -> CodeIndex:
+        """The index of the installed source (built once per process)."""
+        return cls(installed_roots())
+
+    # -- the import graph ------------------------------------------------------------------
+    def imports(self, module: str) -> frozenset[str]:
+        """Internal modules ``module`` imports anywhere in its file (not TYPE_CHECKING)."""
+        if module not in self._imports:
+            tree = ast.parse(self.files[module].read_bytes())
+            pkg = module if module in self.packages else module.rpartition(".")[0]
+            found: set[str] = set()
+            for node in _runtime_nodes(tree):
+                if isinstance(node, ast.Import):
+                    found.update(self._known(a.name) for a in node.names)
+                elif isinstance(node, ast.ImportFrom):
+                    base = _resolve(node, pkg)
+                    found.add(self._known(base))
+                    found.update(self._known(f"{base}.{a.name}") for a in node.names)
+            found.discard("")
+            self._imports[module] = frozenset(found)
+        return self._imports[module]
+
+    def _known(self, name: str) -> str:
+        """``name`` or its longest prefix that is a module of the index ('' if none)."""
+        while name and name not in self.files:
+            name = name.rpartition(".")[0]
+        return name
+
+    def closure(self, entries: Iterable[str]) -> list[str]:
+        """Sorted modules run by importing ``entries``: their imports, transitively, and the
+        ``__init__`` of every enclosing package."""
+        seen: set[str] = set()
+        todo = [self._known(e) or _missing(e) for e in entries]
+        while todo:
+            mod = todo.pop()
+            if mod in seen:
+                continue
+            seen.add(mod)
+            parents = [mod.rsplit(".", i)[0] for i in range(1, mod.count(".") + 1)]
+            todo.extend(p for p in parents if p in self.files)
+            todo.extend(self.imports(mod) - seen)
+        return sorted(seen)
+
+    def digest(self, entries: Iterable[str]) -> str:
+        """sha256 over the names and bytes of :meth:`closure` of ``entries``."""
+        h = hashlib.sha256()
+        for mod in self.closure(entries):
+            h.update(mod.encode() + b"\0" + self.files[mod].read_bytes() + b"\0")
+        return h.hexdigest()
+
+
+def _missing(name: str) -> str:
+    raise KeyError(f"no module {name!r} in the code index")
+
+
+def _resolve(node: ast.ImportFrom, pkg: str) -> str:
+    if not node.level:
+        return node.module or ""
+    base = pkg.split(".")
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _runtime_nodes(tree: ast.AST):
+    """Every node of ``tree`` except the bodies of ``if TYPE_CHECKING:`` blocks."""
+    todo = [tree]
+    while todo:
+        node = todo.pop()
+        yield node
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and _is_type_checking(child.test):
+                todo.extend(child.orelse)
+                continue
+            todo.append(child)
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")

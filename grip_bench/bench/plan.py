@@ -1,0 +1,471 @@
+"""The plan of a run: configuration from profile and command line, and every work unit
+with the cache key that names its content (``docs/architecture.md``, "Cache keys").
+
+A unit's key holds its configuration, the keys of the units it reads and a digest of the
+code it runs (:mod:`grip_bench.bench.codehash`): the import closure of the unit's stage
+module and, for a method's units, of the method's module, plus the method's version.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from ..core import constants as C
+from ..core.errors import InputError
+from ..results.layout import CLEAN, MAIN_SPLIT
+from .cache import Cache, jsonable, unit_key
+from .codehash import CodeIndex
+
+STAGES = ("data", "perturb", "train", "predict", "evaluate", "runtime", "report")
+_PERTURBATION_RE = re.compile(r"^(T|R)(\d+(?:\.\d+)?)$")
+
+# [run] keys, as in ``grip_bench/profiles/default.toml`` (the schema every profile follows;
+# a profile without [run] gets default's). Empty strings and lists mean "derive it".
+RUN_KEYS = ("data", "synth_profile", "data_seed", "dataset", "tables", "methods",
+            "extra_methods", "perturbations", "perturb_seed", "seed", "metrics", "per_frame",
+            "device", "bootstrap_seed", "bootstrap_n", "runtime_sequences", "runtime_repeats",
+            "figure_methods", "physics_frames", "iv_frames")
+
+
+# --- profiles -------------------------------------------------------------------------------
+def load_run_profile(name_or_path: str) -> tuple[str, dict, Path]:
+    """``(name, profile dict, file)`` of a built-in profile name or a ``.toml`` path.
+
+    Loading and key/type checks are ``grip_bench.profiles``' (shared with ``train``).
+    """
+    from ..profiles import load_profile, profile_path
+
+    path = profile_path(name_or_path)
+    data = load_profile(path)
+    return data.get("name", path.stem), data, path
+
+
+def run_settings(profile: dict, where) -> dict:
+    """The profile's ``[run]`` section with its meaning checked."""
+    s = dict(profile.get("run") or {})
+    missing = [k for k in RUN_KEYS if k not in s]
+    if missing:
+        raise InputError(f"[run] lacks {', '.join(missing)}", where=where)
+    if s["data"] not in ("synth", "grab"):
+        raise InputError("[run] data must be 'synth' or 'grab'", where=f"{where}: run.data")
+    for key in ("runtime_sequences", "runtime_repeats", "bootstrap_n", "physics_frames",
+                "iv_frames"):
+        if s[key] < (0 if key in ("runtime_sequences", "physics_frames", "iv_frames") else 1):
+            raise InputError(f"[run] {key} is too small: {s[key]}", where=f"{where}: run.{key}")
+    for label in s["perturbations"]:
+        parse_perturbation(label)
+    return s
+
+
+# --- configuration --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything one run needs, resolved from the profile and the command line."""
+
+    profile_name: str
+    profile: dict
+    profile_file: str
+    out: Path
+    data: Path | None
+    settings: dict
+    tables: tuple[str, ...]
+    methods: tuple[str, ...]
+    perturbations: tuple[str, ...]
+    device: str
+    workers: int | None = None
+    model_path: str | None = None
+    progress: bool = True
+    notes: tuple[str, ...] = ()
+    methods_explicit: bool = False  # named by --methods or [run] methods, not derived from tables
+
+    @property
+    def seed(self) -> int:
+        return int(self.settings["seed"])
+
+    def report_options(self) -> dict:
+        """What ``report`` needs to re-render (saved in the manifest)."""
+        s = self.settings
+        return {"bootstrap_seed": s["bootstrap_seed"], "bootstrap_n": s["bootstrap_n"],
+                "figure_methods": list(s["figure_methods"]), "split": MAIN_SPLIT}
+
+
+def parse_perturbation(label: str) -> tuple[str, float]:
+    """``"T0.01"`` -> ``("T", 0.01)``: GRAB-T translation (m) or GRAB-R pose (rad) noise."""
+    m = _PERTURBATION_RE.match(label)
+    if not m:
+        raise InputError(f"perturbation '{label}' should look like T0.01 or R0.3",
+                         where="perturbations")
+    return m.group(1), float(m.group(2))
+
+
+def _select_tables(requested, settings_tables) -> tuple[str, ...]:
+    """Table ids from the command line, else the profile; empty or ``all``: every table."""
+    from ..report.tables import TABLES
+
+    names = list(requested or settings_tables)
+    if not names or names == ["all"]:
+        return tuple(TABLES.names())
+    for name in names:
+        TABLES.get(name)  # InputError listing the known tables
+    return tuple(dict.fromkeys(names))
+
+
+def _select_methods(requested, settings: dict, tables) -> tuple[tuple[str, ...], list[str]]:
+    """``(methods, notes)``: explicit methods (command line, then profile ``methods``), else
+    every registered method the tables name plus ``extra_methods``.
+
+    An explicit unknown method is an error; a table's or ``extra_methods``' method that is
+    not registered (yet) is skipped with a note, and its cells stay empty ("–").
+    """
+    from ..methods.api import load_all
+    from ..report.tables import TABLES
+
+    registry = load_all()
+    names = list(requested or settings["methods"])
+    if names == ["all"]:
+        return tuple(registry.names()), []
+    if names:
+        for name in names:
+            registry.get(name)  # InputError listing the known methods
+        return tuple(dict.fromkeys(names)), []
+    wanted = sorted({m for t in tables for m in TABLES.get(t).methods()})
+    wanted += [m for m in settings["extra_methods"] if m not in wanted]
+    missing = [m for m in wanted if m not in registry]
+    notes = [f"not registered, skipped (its table cells stay empty): {', '.join(missing)}"] \
+        if missing else []
+    return tuple(m for m in wanted if m in registry), notes
+
+
+def make_config(profile: str, *, data=None, out=None, methods=None, tables=None, device=None,
+                workers=None, model_path=None, progress=True) -> RunConfig:
+    """Resolve a :class:`RunConfig`; raises :class:`InputError` on bad choices."""
+    name, prof, path = load_run_profile(profile)
+    settings = run_settings(prof, path)
+    if settings["data"] == "grab" and data is None:
+        raise InputError(f"profile '{name}' runs on real GRAB data (SMPL-X / MANO): pass --data "
+                         "DIR, the folder holding grab/ and tools/", where="--data")
+    if data is not None and not Path(data).is_dir():
+        raise InputError("data folder not found", where=data)
+    device = device or settings["device"]
+    _check_device(device)
+    chosen_tables = _select_tables(tables, settings["tables"])
+    chosen_methods, notes = _select_methods(methods, settings, chosen_tables)
+    return RunConfig(
+        profile_name=name, profile=prof, profile_file=str(path),
+        out=Path(out) if out is not None else Path(C.RUN_DEFAULT_OUT) / name,
+        data=Path(data) if data is not None else None, settings=settings,
+        tables=chosen_tables, methods=chosen_methods,
+        perturbations=tuple(settings["perturbations"]), device=device, workers=workers,
+        model_path=model_path, progress=progress, notes=tuple(notes),
+        methods_explicit=bool(methods or settings["methods"]))
+
+
+def _check_device(device: str) -> None:
+    if device not in ("cpu", "cuda") and not device.startswith("cuda:"):
+        raise InputError(f"unknown device '{device}' (cpu or cuda)", where="--device")
+    if device.startswith("cuda"):
+        import torch
+
+        if not torch.cuda.is_available():
+            raise InputError("CUDA is not available on this machine (use --device cpu)",
+                             where="--device")
+
+
+# --- the plan -------------------------------------------------------------------------------
+# --- code in the keys ------------------------------------------------------------------------
+# The module holding each unit kind's work; its import closure is the kind's code.
+STAGE_MODULES = {"dataset": "data", "perturbed": "perturb", "checkpoint": "train",
+                 "prediction": "predict", "metrics": "evaluate", "runtime": "runtime"}
+
+
+def stage_code(kind: str, *modules: str) -> str:
+    """Digest of the code a unit of ``kind`` runs: the import closure of its stage module
+    and of ``modules`` (a method's module: methods are found by name, not imported)."""
+    entries = [f"{__package__}.stages.{STAGE_MODULES[kind]}", *modules]
+    return CodeIndex.installed().digest(entries)
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One cached piece of work: its key, what it reads (``deps``) and its parameters."""
+
+    kind: str
+    key: str
+    label: str
+    params: dict
+    deps: tuple[str, ...] = ()
+
+
+@dataclass
+class Plan:
+    """Every unit of a run in execution order, with the cached ones marked."""
+
+    units: list[Unit]
+    cached: dict[str, bool]
+    data_key: str
+    dataset: str
+    notes: list[str] = field(default_factory=list)
+
+    def of(self, kind: str) -> list[Unit]:
+        return [u for u in self.units if u.kind == kind]
+
+    def lines(self) -> list[str]:
+        """Human-readable plan: one line per unit, ``[cached]`` or ``[todo]``."""
+        return [f"{'[cached]' if self.cached[u.key] else '[todo]  '} {u.kind:<10} {u.label}"
+                for u in self.units]
+
+
+def _add(units: list[Unit], kind: str, title: str, inputs: dict, deps=(), **params) -> Unit:
+    unit = Unit(kind, unit_key(kind, inputs), title, {**params, "inputs": inputs}, tuple(deps))
+    units.append(unit)
+    return unit
+
+
+def _data_unit(cfg: RunConfig, units: list[Unit]) -> Unit:
+    s = cfg.settings
+    if cfg.data is not None:
+        from ..data.grab_io import dataset_hash
+
+        source = dataset_hash(cfg.data)
+        inputs = {"source": "import", "source_hash": source, "model_path": cfg.model_path,
+                  "code": stage_code("dataset")}
+        return _add(units, "dataset", f"import {cfg.data}", inputs, source_hash=source)
+    inputs = {"source": "synthgrab", "profile": s["synth_profile"], "seed": s["data_seed"],
+              "code": stage_code("dataset")}
+    return _add(units, "dataset", f"synthgrab profile={s['synth_profile']} seed={s['data_seed']}",
+                inputs)
+
+
+def _table_cells(cfg: RunConfig):
+    """``(column, filters)`` of every cell of the chosen tables."""
+    from ..report.tables import TABLES
+
+    for tid in cfg.tables:
+        spec = TABLES.get(tid)
+        for row in spec.rows:
+            for col in spec.columns:
+                yield col, spec.cell_filters(row, col)
+
+
+def method_needs(cfg: RunConfig) -> dict[str, list[str]]:
+    """Per chosen method, the test sets (``none`` + perturbation labels) it predicts on.
+
+    Every method runs on the clean test split (leaderboard) unless its spec says
+    ``clean=False``; a method also runs on a perturbed set when a chosen table reads it
+    there (Table 3 and its ``before`` rows) and the profile builds that set.
+    """
+    from ..methods.api import METHODS
+
+    needs = {m: {CLEAN} if METHODS.get(m).clean else set() for m in cfg.methods}
+    for col, flt in _table_cells(cfg):
+        pert = flt.get("perturbation", CLEAN)
+        for method in (flt.get("method"), (col.before or {}).get("method")):
+            if method in needs and pert in cfg.perturbations:
+                needs[method].add(pert)
+    order = [CLEAN, *cfg.perturbations]
+    return {m: [p for p in order if p in sets] for m, sets in needs.items()}
+
+
+def _method_inputs(spec, kind: str) -> dict:
+    """A method unit's identity: name, options, version and the code the unit runs (its
+    stage module and the method's module, each with everything they import)."""
+    return {"method": spec.name, "options": spec.options, "trainable": spec.trainable,
+            "version": spec.version, "code": stage_code(kind, spec.factory.__module__)}
+
+
+def _train_identity(spec) -> dict:
+    """What makes a checkpoint: the method, or its ``train_key()`` when it has one.
+
+    GRIP variants that differ only at inference (``grip`` / ``grip-no-rnet``) report the
+    same train key, so they share one checkpoint unit instead of training twice.
+    """
+    ident = {"method": spec.name, "options": spec.options}
+    train_key = getattr(spec.build(), "train_key", None)
+    if callable(train_key):
+        factory = f"{spec.factory.__module__}.{spec.factory.__qualname__}"
+        ident = {"factory": factory, "train_key": train_key()}
+    return {**ident, "version": spec.version,
+            "code": stage_code("checkpoint", spec.factory.__module__)}
+
+
+def _train_units(cfg, data: Unit, units: list[Unit]) -> dict[str, Unit | None]:
+    from ..methods.api import METHODS
+
+    out: dict[str, Unit | None] = {}
+    by_key: dict[str, Unit] = {}
+    leaders: dict[str, str] = {}  # family -> key of its first checkpoint unit
+    train_cfg = {k: v for k, v in cfg.profile.items() if k not in ("run", "name")}
+    for name in cfg.methods:
+        spec = METHODS.get(name)
+        if not spec.trainable:
+            out[name] = None
+            continue
+        ident = _train_identity(spec)
+        inputs = {**ident, "data": data.key, "profile": train_cfg,
+                  "seed": cfg.seed, "device": cfg.device}
+        key = unit_key("checkpoint", inputs)
+        if key not in by_key:
+            # variants of one family (same factory, a train_key) share cached features:
+            # the first builds them, the others start after it (run_parallel)
+            family = ident.get("factory")
+            after = leaders.setdefault(family, key) if family else None
+            by_key[key] = _add(units, "checkpoint", f"train {name}", inputs, [data.key],
+                               method=name, after=None if after == key else after)
+        out[name] = by_key[key]
+    return out
+
+
+def _test_sets(cfg, data: Unit, units: list[Unit]) -> dict[str, Unit]:
+    sets = {CLEAN: data}
+    for label in cfg.perturbations:
+        kind, sigma = parse_perturbation(label)
+        inputs = {"data": data.key, "kind": kind, "sigma": sigma,
+                  "seed": cfg.settings["perturb_seed"], "split": MAIN_SPLIT,
+                  "code": stage_code("perturbed")}
+        sets[label] = _add(units, "perturbed", f"perturb {label}", inputs, [data.key],
+                           label=label, noise=kind, sigma=sigma)
+    return sets
+
+
+def world_up(cfg: RunConfig) -> tuple[float, float, float]:
+    """Gravity axis for physics: SynthGRAB (procedural bodies) is y-up, real GRAB z-up."""
+    if cfg.data is None:
+        return tuple(float(x) for x in C.UP)
+    from ..data.grab_io import list_sequences, read_grab_header
+
+    files = list_sequences(cfg.data)
+    procedural = bool(files) and read_grab_header(files[0]).get("body_model") == "procedural"
+    return tuple(float(x) for x in C.UP) if procedural else (0.0, 0.0, 1.0)
+
+
+def set_metrics(cfg: RunConfig, label: str, method: str | None = None) -> list[str]:
+    """Metric ids evaluated on test set ``label`` (for ``method``), sorted.
+
+    The clean set gets every chosen metric (the leaderboard shows them all), except for
+    an ablation variant (``MethodSpec.variant_of``), which is compared only in its tables;
+    a perturbed set gets only those a chosen table reads on it (Table 3: MPVPE, MPJPE).
+    This spares the costly physics and intersection metrics where no table shows them.
+    """
+    from ..methods.api import METHODS
+    from ..metrics.registry import METRICS
+
+    chosen = list(cfg.settings["metrics"] or METRICS.names())
+    variant = method is not None and method in METHODS and METHODS.get(method).variant_of
+    if label == CLEAN and not variant:
+        return sorted(chosen)
+    read = {flt.get("metric") for _, flt in _table_cells(cfg)
+            if flt.get("perturbation", CLEAN) == label
+            and (not variant or flt.get("method") == method)}
+    return sorted(m for m in chosen if m in read)
+
+
+def _metric_inputs(cfg: RunConfig, label: str = CLEAN, method: str | None = None) -> dict:
+    from ..metrics.registry import METRICS
+
+    chosen = set_metrics(cfg, label, method)
+    versions = {m: METRICS.get(m).version for m in chosen}
+    return {"metrics": chosen, "versions": versions, "per_frame": cfg.settings["per_frame"],
+            "options": asdict(eval_options(cfg)), "code": stage_code("metrics")}
+
+
+def _predict_eval_units(cfg, plan_units, data, sets, ckpts, dataset) -> None:
+    from ..methods.api import METHODS
+
+    for name, labels in method_needs(cfg).items():
+        spec = METHODS.get(name)
+        ckpt = ckpts[name]
+        for label in labels:
+            src = sets[label]
+            inputs = {
+                **_method_inputs(spec, "prediction"),
+                "checkpoint": ckpt.key if ckpt else None,
+                "input": src.key,
+                "split": MAIN_SPLIT,
+                "seed": cfg.seed,
+                "device": cfg.device if spec.trainable else None,
+            }
+            deps = [src.key] + ([ckpt.key] if ckpt else [])
+            pred = _add(plan_units, "prediction", f"predict {name} @ {label}", inputs, deps,
+                        method=name, input=src.key, checkpoint=ckpt.key if ckpt else None,
+                        perturbation=label)
+            labels_ = {"method": name, "dataset": dataset, "split": MAIN_SPLIT,
+                       "perturbation": label}
+            _add(plan_units, "metrics", f"evaluate {name} @ {label}",
+                 {**_metric_inputs(cfg, label, name), "prediction": pred.key, "gt": data.key,
+                  "labels": labels_},
+                 [pred.key, data.key], prediction=pred.key, gt=data.key, labels=labels_)
+
+
+def timed_methods(cfg: RunConfig) -> list[str]:
+    """Methods the runtime stage times: all of them when named explicitly, else those the
+    chosen runtime tables list (timing every ablation variant would tell nothing new)."""
+    from ..report.tables import TABLES
+
+    if cfg.methods_explicit:
+        return list(cfg.methods)
+    named = {
+        m for t in cfg.tables if TABLES.get(t).source == "runtime" for m in TABLES.get(t).methods()
+    }
+    return [m for m in cfg.methods if m in named]
+
+
+def _runtime_units(cfg, data: Unit, ckpts, units: list[Unit]) -> None:
+    from ..methods.api import METHODS
+
+    s = cfg.settings
+    for name in timed_methods(cfg):
+        spec = METHODS.get(name)
+        ckpt = ckpts[name]
+        inputs = {**_method_inputs(spec, "runtime"), "checkpoint": ckpt.key if ckpt else None,
+                  "data": data.key, "device": cfg.device, "sequences": s["runtime_sequences"],
+                  "repeats": s["runtime_repeats"], "seed": cfg.seed}
+        _add(units, "runtime", f"time {name}", inputs, [data.key] + ([ckpt.key] if ckpt else []),
+             method=name, checkpoint=ckpt.key if ckpt else None, data=data.key)
+
+
+def dataset_name(cfg: RunConfig) -> str:
+    """The ``dataset`` column: [run] dataset, else SynthGRAB or GRAB by the data's origin."""
+    if cfg.settings["dataset"]:
+        return cfg.settings["dataset"]
+    if cfg.data is None:
+        return "synthgrab"
+    try:
+        gen = json.loads((cfg.data / "manifest.json").read_text(encoding="utf-8"))["generator"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return "grab"
+    return "synthgrab" if "synth" in str(gen).lower() else "grab"
+
+
+def build_plan(cfg: RunConfig, cache: Cache) -> Plan:
+    """List every unit of the run in execution order and mark those already cached."""
+    units: list[Unit] = []
+    dataset = dataset_name(cfg)
+    data = _data_unit(cfg, units)
+    sets = _test_sets(cfg, data, units)
+    ckpts = _train_units(cfg, data, units)
+    _predict_eval_units(cfg, units, data, sets, ckpts, dataset)
+    _runtime_units(cfg, data, ckpts, units)
+    order = {k: i for i, k in enumerate(("dataset", "perturbed", "checkpoint", "prediction",
+                                          "metrics", "runtime"))}
+    units.sort(key=lambda u: order[u.kind])  # stable: plan order within a kind
+    cached = {u.key: cache.has(u.key) for u in units}
+    return Plan(units, cached, data.key, dataset)
+
+
+def eval_options(cfg: RunConfig):
+    """Evaluation options of the run (metrics.evaluate.EvalOptions); part of the metric keys."""
+    from ..metrics.evaluate import EvalOptions
+
+    return EvalOptions(model_path=cfg.model_path, up=world_up(cfg),
+                       max_physics_frames=int(cfg.settings["physics_frames"]),
+                       max_iv_frames=int(cfg.settings["iv_frames"]))
+
+
+def config_dict(cfg: RunConfig) -> dict:
+    """The configuration as plain data (for ``--dry-run`` and tests)."""
+    d = asdict(cfg)
+    d["out"], d["data"] = str(cfg.out), str(cfg.data) if cfg.data else None
+    return jsonable(d)

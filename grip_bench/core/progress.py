@@ -1,0 +1,14 @@
+"""Progress bars on stderr (tqdm), one helper for every long loop of the suite."""
+
+from __future__ import annotations
+
+import sys
+
+
+def bar(items, desc: str, enabled: bool, unit: str = "unit"):
+    """A tqdm progress bar on stderr (a plain iterator when progress is off)."""
+    if not enabled:
+        return items
+    from tqdm import tqdm
+
+    return tqdm(items, desc=desc, unit=unit, leave=False, file=sys.stderr, dynamic_ncols=True)

@@ -1,0 +1,152 @@
+"""A run's report from its folder alone: tables, figures and leaderboards.
+
+``grip-bench report OUT`` and the end of ``grip-bench run`` call :func:`write_report`, so
+both write the same bytes. Reads ``OUT/results.csv``, ``OUT/runtime.csv``, the figure data
+under ``OUT/figures/`` and the report options saved in ``OUT/manifest.json``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..core import constants as C
+from ..core.errors import InputError
+from ..results.layout import CLEAN, MAIN_SPLIT
+
+# figure data (written by ``run`` from the metric units, read by ``write_figures``)
+HEATMAP_DATA = "heatmap_data.npz"
+DEPTH_DATA = "penetration_depths.npz"
+DEPTH_FORMAT = 1
+HEATMAP_PNG = "contact_heatmaps.png"
+CDF_PNG = "penetration_cdf.png"
+BAR_METRICS = ("mpvpe", "iv")  # per_object_<metric>.png
+
+
+def figure_methods(settings: dict) -> list[str]:
+    """Methods of the heatmaps and the CDF: gt first, then ``[run] figure_methods`` (empty:
+    ``constants.RUN_FIGURE_METHODS``); those without figure data are left out later."""
+    chosen = list(settings.get("figure_methods") or C.RUN_FIGURE_METHODS)
+    return ["gt", *dict.fromkeys(m for m in chosen if m != "gt")]
+
+
+def read_depth_data(path: Path) -> dict[str, np.ndarray]:
+    """``{method: (N,) mm}`` of ``penetration_depths.npz``."""
+    from ..metrics.aggregate import read_npz
+
+    d = read_npz(path)
+    if int(d["format"][0]) != DEPTH_FORMAT:
+        raise InputError(f"penetration depth format {int(d['format'][0])}, expected {DEPTH_FORMAT}",
+                         path)
+    off = d["offsets"]
+    return {m: d["depths"][off[i]:off[i + 1]] for i, m in enumerate(d["methods"].tolist())}
+
+
+def write_figures(out: Path, results: pd.DataFrame, options: dict) -> list[Path]:
+    """Figures under ``OUT/figures/`` from saved results and figure data (report.figures).
+
+    Contact heatmaps (``heatmap_data.npz``), penetration CDF (``penetration_depths.npz``)
+    and per-object bars of :data:`BAR_METRICS` on the clean main split (``results``). A
+    figure without data (or whose data does not fit, e.g. a hand template of another vertex
+    count) is skipped and an older PNG of it removed. Returns the PNG paths (embedded in
+    leaderboard.html).
+    """
+    from . import figures as F
+
+    figs = out / "figures"
+    drawn: list[Path] = []
+    jobs = []
+    if (figs / HEATMAP_DATA).is_file():
+        jobs.append((HEATMAP_PNG, lambda p: F.contact_heatmap(
+            F.read_heatmap_data(figs / HEATMAP_DATA), p,
+            title="Contact frequency over grasp frames (clean test split)")))
+    if (figs / DEPTH_DATA).is_file():
+        jobs.append((CDF_PNG, lambda p: F.penetration_cdf(
+            read_depth_data(figs / DEPTH_DATA), p,
+            title="Penetration depth per grasp frame (clean test split)")))
+    main = results[(results["split"] == options.get("split", MAIN_SPLIT))
+                   & (results["perturbation"] == CLEAN)]
+    for metric in BAR_METRICS:
+        present = set(main.loc[main["metric"] == metric, "method"])
+        # the heatmaps' methods (gt first): twenty methods side by side are unreadable
+        bar_methods = [m for m in figure_methods(options) if m in present]
+        if bar_methods:
+            jobs.append((f"per_object_{metric}.png", lambda p, metric=metric, ms=bar_methods:
+                         F.per_object_bars(main, metric, p, methods=ms,
+                                           n_boot=options["bootstrap_n"],
+                                           seed=options["bootstrap_seed"])))
+    names = {HEATMAP_PNG, CDF_PNG, *(f"per_object_{m}.png" for m in BAR_METRICS)}
+    for name, draw in jobs:
+        try:
+            drawn.append(draw(figs / name))
+            names.discard(name)
+        except InputError:
+            pass
+    for name in sorted(names):  # stale figures of an earlier run
+        if (figs / name).exists():
+            (figs / name).unlink()
+    return drawn
+
+
+def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
+                       figures: list[Path]) -> list[Path]:
+    """``leaderboard.{csv,md,html}`` of the clean main split (one set per dataset)."""
+    from ..methods.api import predicted_hands, variants
+    from .leaderboard import (
+        leaderboard,
+        write_leaderboard_csv,
+        write_leaderboard_html,
+        write_leaderboard_md,
+    )
+
+    main = results[results["split"] == options.get("split", MAIN_SPLIT)]
+    main = main[~main["method"].isin(variants())]  # ablations: in their own tables
+    datasets = sorted(main["dataset"].unique()) or [None]
+    hands = predicted_hands()
+    written = []
+    for ds in datasets:
+        df = main if ds is None else main[main["dataset"] == ds]
+        lb = leaderboard(df, seed=options["bootstrap_seed"], n_boot=options["bootstrap_n"],
+                         hands=hands)
+        stem = "leaderboard" if len(datasets) == 1 else f"leaderboard.{ds}"
+        written += [write_leaderboard_csv(lb, out / f"{stem}.csv"),
+                    write_leaderboard_md(lb, out / f"{stem}.md")]
+        if not lb.empty:
+            written.append(write_leaderboard_html(lb, out / f"{stem}.html", figures=figures))
+    return written
+
+
+def report_options(out: Path) -> dict:
+    """Rendering options saved by ``run`` in ``manifest.json`` (defaults without one)."""
+    defaults = {"bootstrap_seed": C.BOOTSTRAP_SEED, "bootstrap_n": C.BOOTSTRAP_N,
+                "figure_methods": list(C.RUN_FIGURE_METHODS), "split": MAIN_SPLIT}
+    path = Path(out) / "manifest.json"
+    if not path.is_file():
+        return defaults
+    from ..results.manifest import read_manifest
+
+    saved = (read_manifest(path).get("config") or {}).get("report") or {}
+    return {**defaults, **saved}
+
+
+def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Path]:
+    """Tables, figures and leaderboard from ``OUT/results.csv`` (+ runtime.csv, figure data).
+
+    Reads only files in ``OUT``: ``grip-bench report OUT`` and the end of ``run`` call this
+    same function, so they write the same bytes.
+    """
+    from ..results.schema import read_results
+    from .render import render_all
+
+    out = Path(out)
+    options = options or report_options(out)
+    results = read_results(out / "results.csv")
+    written = render_all(out, out / "tables", n_boot=options["bootstrap_n"],
+                         seed=options["bootstrap_seed"])
+    figures = write_figures(out, results, options)
+    written += figures
+    written += write_leaderboards(out, results, options, figures)
+    return written
