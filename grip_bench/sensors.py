@@ -29,8 +29,8 @@ import numpy as np
 
 from .core import constants as C
 from .core.errors import InputError
+from .core.frames import NET_SIDES
 
-NET_SIDES = ("left", "right")  # hand order of the (T, 2, ...) arrays
 AMBIENT_KINDS = ("distance", "voxel", "none")
 
 

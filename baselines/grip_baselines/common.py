@@ -355,7 +355,8 @@ def contact_frames(
     frames: np.ndarray | None = None,
 ) -> np.ndarray:
     """Frames (T,) where the hand (``params`` or the sequence's) is within ``threshold``
-    of the object or inside it: the grasp frames of DESIGN 5 for ground-truth hands.
+    of the object or inside it: the grasp frames (docs/contract.md, "Definitions") for
+    ground-truth hands.
     With ``frames`` (indices) only those are tested: a ``(len(frames),)`` mask."""
     p = params or seq.hand_params(side)
     if frames is not None:

@@ -109,8 +109,9 @@ def _runtime_columns() -> tuple[str, ...]:
 def assemble_figure_data(st: RunState) -> None:
     """``OUT/figures/{heatmap_data,penetration_depths}.npz`` from the clean-split metric units'
     ``contact_stats.npz`` (stale files are removed when there is nothing to write)."""
+    from ..core.frames import SIDES
     from ..metrics.aggregate import CONTACT_STATS_FILE, read_npz, write_npz
-    from ..report.figures import SIDES, write_heatmap_data
+    from ..report.figures import write_heatmap_data
 
     figs = st.cfg.out / "figures"
     stats: dict[str, dict] = {}

@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from ..bodies.layouts import SMPLX_INDEX, SMPLX_JOINTS
 from ..core import constants as C
 from ..core.errors import InputError
+from ..core.frames import SIDES
 
 # Width of every (T, k) parameter array, per part, in GRAB's key names.
 BODY_DIMS = {
@@ -43,7 +44,6 @@ ROTATION_KEYS = frozenset(k for dims in PART_DIMS.values() for k in dims
 
 GENDERS = ("male", "female", "neutral")
 BODY_MODELS = ("procedural", "smplx")
-SIDES = ("right", "left")
 HAND_PART = {"right": "rhand", "left": "lhand"}
 
 # GRAB contact label = SMPL-X joint index + 1 (0 = no contact).

@@ -31,10 +31,11 @@ import torch
 from ..bodies.layouts import SMPLX_INDEX
 from ..core import constants as C
 from ..core.errors import InputError
+from ..core.frames import NET_SIDES
 from ..core.io import atomic_file
 from ..core.threads import single_thread
 from ..geometry.rotations import axis_angle_to_matrix, matrix_to_rotation_6d
-from ..sensors import NET_SIDES, ambient_sensor, stage_one, wrist_frames
+from ..sensors import ambient_sensor, stage_one, wrist_frames
 
 FEATURE_VERSION = 1  # bump when any per-frame array changes meaning
 ARM_JOINTS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow")

@@ -38,8 +38,9 @@ import torch
 from ..bodies.layouts import SMPLX_INDEX
 from ..core import constants as C
 from ..core.errors import InputError
+from ..core.frames import NET_SIDES
 from ..geometry.rotations import matrix_to_axis_angle, rotation_6d_to_axis_angle
-from ..sensors import NET_SIDES, future_cue, proximity_feature, stage_one, wrist_frames
+from ..sensors import future_cue, proximity_feature, stage_one, wrist_frames
 from .data import (
     ARM_JOINTS,
     arms_6d,

@@ -34,6 +34,7 @@ import numpy as np
 
 from ..core import constants as C
 from ..core.errors import InputError
+from ..core.frames import SIDES
 from ..results.schema import ResultRow
 from .contact import contact_consistency, contact_drift, grasp_mask, in_contact
 from .intersection import FailureCounter, intersection_volume_batch
@@ -42,7 +43,6 @@ from .penetration import penetration_depth_from_sdf
 from .pose import mpjpe, mpvpe
 from .registry import METRICS, metric
 
-SIDES = ("right", "left")
 PHYSICS_METRICS = ("sim_stable", "sim_disp", "sim_disp_hold")
 
 

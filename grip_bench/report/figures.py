@@ -30,10 +30,10 @@ from matplotlib.figure import Figure
 
 from ..core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED
 from ..core.errors import InputError
+from ..core.frames import SIDES
 from ..core.io import atomic_write_bytes
 from ..results.stats import bootstrap_ci, per_sequence
 
-SIDES = ("right", "left")
 VIEWS = ("palm", "back")
 GT_NAMES = ("gt", "ground truth", "ground_truth", "grab")  # drawn first, labelled "ground truth"
 HEATMAP_FORMAT = 1  # bump when the heatmap .npz layout changes

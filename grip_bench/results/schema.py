@@ -203,17 +203,21 @@ def write_results(rows: Iterable[ResultRow] | pd.DataFrame, path: str | os.PathL
     return atomic_write_text(path, to_csv_text(df))
 
 
-def read_results(path: str | os.PathLike) -> pd.DataFrame:
-    """Read and validate a ``results.csv`` / ``frames.csv``; typed columns, canonical order."""
+def _read_csv_text(path: str | os.PathLike, what: str) -> tuple[pd.DataFrame, Path]:
+    """Every cell of a CSV file as text (names like "nan" or "NA" stay names; the value
+    columns are parsed by the validators, with row-numbered errors)."""
     path = Path(path)
     if not path.is_file():
-        raise InputError("results file not found", where=path)
+        raise InputError(f"{what} file not found", where=path)
     try:
-        # everything as text first: names like "nan" or "NA" stay names, and the value
-        # column is parsed by validate() with row-numbered errors
-        df = pd.read_csv(path, dtype=str, keep_default_na=False, na_filter=False)
+        return pd.read_csv(path, dtype=str, keep_default_na=False, na_filter=False), path
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
         raise InputError(f"not a readable CSV file: {e}", where=path) from None
+
+
+def read_results(path: str | os.PathLike) -> pd.DataFrame:
+    """Read and validate a ``results.csv`` / ``frames.csv``; typed columns, canonical order."""
+    df, path = _read_csv_text(path, "results")
     return validate(df, where=path)
 
 
@@ -269,11 +273,5 @@ def write_runtime(df: pd.DataFrame, path: str | os.PathLike) -> Path:
 
 def read_runtime(path: str | os.PathLike) -> pd.DataFrame:
     """Read and validate ``runtime.csv``."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("runtime file not found", where=path)
-    try:
-        df = pd.read_csv(path, dtype=str, keep_default_na=False, na_filter=False)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise InputError(f"not a readable CSV file: {e}", where=path) from None
+    df, path = _read_csv_text(path, "runtime")
     return validate_runtime(df, where=path)

@@ -164,10 +164,11 @@ def test_run_many_batches_anet_across_sequences_without_changing_results(root, t
 def _naive_hands(nets, variant, seq, lib):
     """GRIP offline, written plainly: eval-mode networks, every decoded frame kept, exact
     proximity on every frame, RNet on every frame behind the interaction mask."""
+    from grip_bench.core.frames import NET_SIDES
     from grip_bench.grip.data import arms_6d, body_context, hand_proximity
     from grip_bench.grip.pipeline import moved_wrists, set_arms
     from grip_bench.grip.train import sensor_inputs
-    from grip_bench.sensors import NET_SIDES, future_cue, stage_one, wrist_frames
+    from grip_bench.sensors import future_cue, stage_one, wrist_frames
 
     t_ = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
     noisy = arms_6d(seq.body["body_pose"])

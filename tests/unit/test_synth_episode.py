@@ -8,6 +8,7 @@ import torch
 import trimesh
 
 from grip_bench.core import constants as C
+from grip_bench.core.frames import SIDES
 from grip_bench.data.grab_io import read_grab, write_grab
 from grip_bench.data.sequence import CONTACT_HAND_LABELS
 from grip_bench.data.synth import episode as E
@@ -15,7 +16,7 @@ from grip_bench.data.synth.caches import ObjectTools, hand_models
 from grip_bench.data.synth.grasp_plan import hands_clear
 from grip_bench.data.synth.motion import min_jerk_path
 from grip_bench.data.synth.objects import make_instance
-from grip_bench.data.synth.scene import SIDES, object_of
+from grip_bench.data.synth.scene import object_of
 from grip_bench.data.synth.world import make_subjects
 
 SUBJECTS = make_subjects(4, 0)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from grip_bench.core.constants import CONTACT_THRESHOLD
+from grip_bench.core.frames import SIDES
 from grip_bench.data.synth import episode as E
 from grip_bench.data.synth import grasp as G
 from grip_bench.data.synth.caches import ObjectTools, hand_models
 from grip_bench.data.synth.contact import _posed_hands, contact_labels, repeats
 from grip_bench.data.synth.grasp_plan import approach_dirs
 from grip_bench.data.synth.objects import make_instance
-from grip_bench.data.synth.scene import SIDES
 from grip_bench.data.synth.world import make_subjects
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from grip_bench.core.frames import SIDES
 from grip_bench.data.synth import episode as E
 from grip_bench.data.synth.caches import ObjectTools, hand_models
 from grip_bench.data.synth.contact import object_clearance
@@ -12,7 +13,6 @@ from grip_bench.data.synth.grasp import AVOID_CLEARANCE
 from grip_bench.data.synth.grasp_plan import hands_clear
 from grip_bench.data.synth.objects import make_instance
 from grip_bench.data.synth.scene import (
-    SIDES,
     TABLE_THICKNESS,
     Scene,
     make_scene,

@@ -14,10 +14,11 @@ import trimesh
 
 from ...bodies.body import ProceduralBody
 from ...bodies.hand import ProceduralHand
+from ...core.frames import SIDES
 from ...geometry.distance import DistanceField
 from .grasp import DistanceBound, GraspSynthesizer
 from .objects import ObjectInstance
-from .scene import SIDES, to_axis_angle
+from .scene import to_axis_angle
 from .world import Subject
 
 

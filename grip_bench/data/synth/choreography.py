@@ -16,9 +16,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from ...core import constants as C
+from ...core.frames import SIDES
 from .motion import rotation_about
 from .objects import ObjectInstance
-from .scene import BACKOFF_DIST, SIDES, SIGN, TABLE_SIZE, Cast, wrist_of
+from .scene import BACKOFF_DIST, SIGN, TABLE_SIZE, Cast, wrist_of
 from .script import Script
 from .world import USE_VERBS, Subject
 

@@ -17,10 +17,11 @@ from scipy.spatial import cKDTree
 from ...bodies.hand import ProceduralHand
 from ...bodies.layouts import HAND_PARTS, MANO_JOINTS
 from ...core import constants as C
+from ...core.frames import SIDES
 from ..sequence import contact_label
 from .caches import ObjectTools, _hand_vertices
 from .objects import ObjectInstance
-from .scene import SIDES, Scene, table_clearance
+from .scene import Scene, table_clearance
 from .solve import Motion
 
 

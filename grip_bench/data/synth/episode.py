@@ -28,6 +28,7 @@ import numpy as np
 import trimesh
 
 from ...core import constants as C
+from ...core.frames import SIDES
 from ..grab_io import object_mesh_relpath
 from ..sequence import Sequence, make_body_params, make_hand_params, make_rigid_params
 from .caches import ObjectTools, body_model, hand_models
@@ -36,7 +37,6 @@ from .contact import _min, _posed_hands, contact_labels, hand_contact, object_cl
 from .grasp_plan import make_cast
 from .objects import ObjectInstance
 from .scene import (
-    SIDES,
     Cast,
     EpisodeFailed,
     make_scene,

@@ -26,7 +26,6 @@ from .motion import rotation_about
 from .objects import ObjectInstance
 from .world import Stage, Subject, draw_stage
 
-SIDES = ("right", "left")
 SIGN = {"right": -1.0, "left": 1.0}  # x direction of each side of the body
 BACKOFF_DIST = 0.10  # m; the wrist backs off this far along the approach after release
 TABLE_SIZE = (1.2, 0.6)  # m; (width along x, depth along z) of every table

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...core.frames import SIDES
 from .motion import blend, min_jerk_path, slerp_path
-from .scene import SIDES
 
 
 # --- key-frame tracks ----------------------------------------------------------------

@@ -18,7 +18,8 @@ from scipy.spatial.transform import Rotation
 
 from ...bodies.body import BodyOutput, ProceduralBody
 from ...bodies.layouts import SMPLX_INDEX
-from .scene import SIDES, Cast, Scene, object_of, wrist_of
+from ...core.frames import SIDES
+from .scene import Cast, Scene, object_of, wrist_of
 from .script import Script
 
 MAX_LEAN = 0.8  # rad; total spine flexion cap (about 45 deg)
