@@ -24,12 +24,17 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .core import constants as C
 from .core.errors import InputError
 from .core.frames import NET_SIDES
+
+if TYPE_CHECKING:
+    from .data.library import ObjectLibrary
+    from .data.sequence import Sequence
 
 AMBIENT_KINDS = ("distance", "voxel", "none")
 
@@ -112,7 +117,7 @@ def to_world(local: np.ndarray, rot: np.ndarray, transl: np.ndarray) -> np.ndarr
     return out
 
 
-def wrist_frames(seq, side: str) -> tuple[np.ndarray, np.ndarray]:
+def wrist_frames(seq: Sequence, side: str) -> tuple[np.ndarray, np.ndarray]:
     """A sequence's wrist rotations ``(T, 3, 3)`` and positions ``(T, 3)`` (its hand params)."""
     from scipy.spatial.transform import Rotation
 
@@ -122,7 +127,9 @@ def wrist_frames(seq, side: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 # --- distances to the object -----------------------------------------------------------------
-def signed_object_distance(library, seq, world: np.ndarray, exact_cells: bool = True) -> np.ndarray:
+def signed_object_distance(
+    library: ObjectLibrary, seq: Sequence, world: np.ndarray, exact_cells: bool = True
+) -> np.ndarray:
     """Signed distance ``(T, N)`` (m, negative inside) of world points ``(T, N, 3)``.
 
     The library's fine grid near the object, the ``SDF_FAR_TIERS`` grids beyond it
@@ -136,7 +143,9 @@ def signed_object_distance(library, seq, world: np.ndarray, exact_cells: bool = 
     return library.field(seq.obj_name).signed_distance(local, far="coarse", exact_cells=exact_cells)
 
 
-def object_distance(library, seq, world: np.ndarray, exact_cells: bool = True) -> np.ndarray:
+def object_distance(
+    library: ObjectLibrary, seq: Sequence, world: np.ndarray, exact_cells: bool = True
+) -> np.ndarray:
     """Unsigned distance ``(T, N)`` (m, 0 inside) to ``seq``'s object.
 
     world: points ``(T, N, 3)``.
@@ -150,7 +159,14 @@ def attention(d: np.ndarray, w: float) -> np.ndarray:
     return np.exp(-w * d)
 
 
-def ambient_feature(library, seq, rot, transl, side: str, kind: str = "distance") -> np.ndarray:
+def ambient_feature(
+    library: ObjectLibrary,
+    seq: Sequence,
+    rot: np.ndarray,
+    transl: np.ndarray,
+    side: str,
+    kind: str = "distance",
+) -> np.ndarray:
     """Ambient sensor of one hand ``(T, A)`` float32 for wrists ``rot (T,3,3)``, ``transl (T,3)``.
 
     kind ``"distance"``: ``exp(-5 d)`` at the 1024 hemisphere points; ``"voxel"``:
@@ -168,7 +184,9 @@ def ambient_feature(library, seq, rot, transl, side: str, kind: str = "distance"
     raise InputError(f"unknown ambient kind {kind!r} (known: distance, voxel)", "ambient")
 
 
-def proximity_feature(library, seq, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def proximity_feature(
+    library: ObjectLibrary, seq: Sequence, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Proximity sensor ``exp(-50 d)`` ``(T, 99)`` float32 and distances ``d (T, 99)`` (m)
     of the world positions ``points (T, 99, 3)`` of a hand's proximity vertices."""
     d = object_distance(library, seq, points)
@@ -207,7 +225,9 @@ class StageOne:
     mean_dist: np.ndarray  # (T, 2) m, mean distance of the mean hand's proximity vertices
 
 
-def stage_one(library, seq, wrists: dict | None = None, ambient: str = "distance") -> StageOne:
+def stage_one(
+    library: ObjectLibrary, seq: Sequence, wrists: dict | None = None, ambient: str = "distance"
+) -> StageOne:
     """Ambient + mean-hand proximity for every frame of ``seq``.
 
     wrists: ``{side: (rot (T,3,3), transl (T,3))}`` overriding the sequence's hand
@@ -229,7 +249,7 @@ def stage_one(library, seq, wrists: dict | None = None, ambient: str = "distance
 
 
 def ambient_sensor(
-    library, seq, wrists: dict | None = None, ambient: str = "distance"
+    library: ObjectLibrary, seq: Sequence, wrists: dict | None = None, ambient: str = "distance"
 ) -> np.ndarray:
     """``stage_one(...).ambient`` ``(T, 2, A)`` alone, without the proximity sensor's distances."""
     if ambient not in AMBIENT_KINDS:
@@ -243,7 +263,14 @@ def ambient_sensor(
     return np.stack(amb, 1)
 
 
-def _ambient(library, seq, rot, transl, side: str, ambient: str) -> np.ndarray:
+def _ambient(
+    library: ObjectLibrary,
+    seq: Sequence,
+    rot: np.ndarray,
+    transl: np.ndarray,
+    side: str,
+    ambient: str,
+) -> np.ndarray:
     if ambient == "none":
         return np.zeros((seq.n_frames, 0), np.float32)
     return ambient_feature(library, seq, rot, transl, side, ambient)

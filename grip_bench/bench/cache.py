@@ -18,6 +18,7 @@ import socket
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from ..core.constants import CACHE_SCHEMA_VERSION
 from ..core.errors import InputError
@@ -34,7 +35,7 @@ _TMP = ".tmp"
 UNIT_FILE = "unit.json"  # each unit's record: kind, label, inputs, info, seconds
 
 
-def canonical_json(obj) -> str:
+def canonical_json(obj: Any) -> str:
     """Sorted keys, no whitespace, shortest float repr: equal inputs give equal text."""
     try:
         return json.dumps(jsonable(obj), sort_keys=True, separators=(",", ":"),
@@ -117,7 +118,7 @@ class Cache:
             (tmp / name).write_bytes(data)
         return self.path(key) / name
 
-    def put_json(self, key: str, obj, name: str = "data.json") -> Path:
+    def put_json(self, key: str, obj: Any, name: str = "data.json") -> Path:
         """Store ``obj`` as sorted-key JSON (deterministic bytes)."""
         text = json.dumps(obj, sort_keys=True, indent=1, allow_nan=True) + "\n"
         return self.put_bytes(key, text.encode("utf-8"), name)
@@ -132,7 +133,7 @@ class Cache:
             shutil.copyfile(src, tmp / name)
         return self.path(key) / name
 
-    def get_json(self, key: str, name: str = "data.json"):
+    def get_json(self, key: str, name: str = "data.json") -> Any:
         """Load a JSON file of a complete unit."""
         path = self.path(key) / name
         if not path.is_file():

@@ -20,7 +20,7 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
 ROOT_PACKAGES = ("grip_bench", "grip_baselines")
@@ -113,7 +113,7 @@ def _resolve(node: ast.ImportFrom, pkg: str) -> str:
     return ".".join(base + ([node.module] if node.module else []))
 
 
-def _runtime_nodes(tree: ast.AST):
+def _runtime_nodes(tree: ast.AST) -> Iterator[ast.AST]:
     """Every node of ``tree`` except the bodies of ``if TYPE_CHECKING:`` blocks."""
     todo = [tree]
     while todo:

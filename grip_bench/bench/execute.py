@@ -13,10 +13,19 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.progress import bar
 from .cache import UNIT_FILE, Cache, jsonable
 from .plan import Plan, RunConfig, Unit
+
+if TYPE_CHECKING:
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm import tqdm
+
+    from ..core.registry import Registry
+    from ..methods.api import MethodSpec
 
 
 # --- execution helpers ----------------------------------------------------------------------
@@ -77,7 +86,9 @@ def execute(st: RunState, unit: Unit, work: Callable[[Path], dict | None]) -> Pa
     return st.unit_dir(unit.key)
 
 
-def run_stage(st: RunState, name: str, kind: str, fn: Callable[[RunState, Unit, Path], dict]):
+def run_stage(
+    st: RunState, name: str, kind: str, fn: Callable[[RunState, Unit, Path], dict]
+) -> None:
     """Execute every unit of ``kind`` with one progress bar; time the stage.
 
     Training and prediction units run in parallel worker processes when ``--workers`` > 1
@@ -124,7 +135,7 @@ def _init_unit_worker() -> None:
     load_all()  # a spawned process starts with an empty method registry
 
 
-def _unit_task(st: RunState, unit: Unit, fn) -> str:
+def _unit_task(st: RunState, unit: Unit, fn: Callable[[RunState, Unit, Path], dict]) -> str:
     execute(st, unit, lambda tmp: fn(st, unit, tmp))
     return unit.key
 
@@ -134,7 +145,13 @@ def _ready(unit: Unit, pending_keys: set[str]) -> bool:
     return unit.params.get("after") not in pending_keys
 
 
-def run_parallel(st: RunState, name: str, units: list[Unit], fn, workers: int) -> None:
+def run_parallel(
+    st: RunState,
+    name: str,
+    units: list[Unit],
+    fn: Callable[[RunState, Unit, Path], dict],
+    workers: int,
+) -> None:
     """Run ``units`` in a spawn pool of ``workers`` processes, at most ``workers`` at a time.
 
     Units are started leaders first (a unit with ``after`` waits for that unit: GRIP's
@@ -177,21 +194,21 @@ def run_parallel(st: RunState, name: str, units: list[Unit], fn, workers: int) -
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _counter(total: int, desc: str, enabled: bool):
+def _counter(total: int, desc: str, enabled: bool) -> tqdm:
     from tqdm import tqdm
 
     return tqdm(total=total, desc=desc, unit="unit", leave=False, file=sys.stderr,
                 dynamic_ncols=True, disable=not enabled)
 
 
-def _predict_cost(unit: Unit, methods) -> float:
+def _predict_cost(unit: Unit, methods: Registry[MethodSpec]) -> float:
     name = unit.params.get("method")
     if unit.kind != "prediction" or name not in methods:
         return 0.0
     return methods.get(name).predict_cost
 
 
-def _stop_workers(pool) -> None:
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
     """Terminate the pool's processes now (``shutdown`` would wait for running units)."""
     for proc in list(getattr(pool, "_processes", {}).values()):  # private, but the only handle
         proc.terminate()

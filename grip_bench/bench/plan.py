@@ -9,15 +9,23 @@ module and, for a method's units, of the method's module, plus the method's vers
 from __future__ import annotations
 
 import json
+import os
 import re
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ..core import constants as C
 from ..core.errors import InputError
 from ..results.layout import CLEAN, MAIN_SPLIT
 from .cache import Cache, jsonable, unit_key
 from .codehash import CodeIndex
+
+if TYPE_CHECKING:
+    from ..methods.api import MethodSpec
+    from ..metrics.evaluate import EvalOptions
+    from ..report.tables import ColumnSpec
 
 STAGES = ("data", "perturb", "train", "predict", "evaluate", "runtime", "report")
 _PERTURBATION_RE = re.compile(r"^(T|R)(\d+(?:\.\d+)?)$")
@@ -43,7 +51,7 @@ def load_run_profile(name_or_path: str) -> tuple[str, dict, Path]:
     return data.get("name", path.stem), data, path
 
 
-def run_settings(profile: dict, where) -> dict:
+def run_settings(profile: dict, where: str | os.PathLike) -> dict:
     """The profile's ``[run]`` section with its meaning checked."""
     s = dict(profile.get("run") or {})
     missing = [k for k in RUN_KEYS if k not in s]
@@ -101,7 +109,9 @@ def parse_perturbation(label: str) -> tuple[str, float]:
     return m.group(1), float(m.group(2))
 
 
-def _select_tables(requested, settings_tables) -> tuple[str, ...]:
+def _select_tables(
+    requested: Iterable[str] | None, settings_tables: Iterable[str]
+) -> tuple[str, ...]:
     """Table ids from the command line, else the profile; empty or ``all``: every table."""
     from ..report.tables import TABLES
 
@@ -113,7 +123,9 @@ def _select_tables(requested, settings_tables) -> tuple[str, ...]:
     return tuple(dict.fromkeys(names))
 
 
-def _select_methods(requested, settings: dict, tables) -> tuple[tuple[str, ...], list[str]]:
+def _select_methods(
+    requested: Iterable[str] | None, settings: dict, tables: Iterable[str]
+) -> tuple[tuple[str, ...], list[str]]:
     """``(methods, notes)``: explicit methods (command line, then profile ``methods``), else
     every registered method the tables name plus ``extra_methods``.
 
@@ -139,8 +151,11 @@ def _select_methods(requested, settings: dict, tables) -> tuple[tuple[str, ...],
     return tuple(m for m in wanted if m in registry), notes
 
 
-def make_config(profile: str, *, data=None, out=None, methods=None, tables=None, device=None,
-                workers=None, model_path=None, progress=True) -> RunConfig:
+def make_config(profile: str, *, data: str | os.PathLike | None = None,
+                out: str | os.PathLike | None = None, methods: Sequence[str] | None = None,
+                tables: Sequence[str] | None = None, device: str | None = None,
+                workers: int | None = None, model_path: str | None = None,
+                progress: bool = True) -> RunConfig:
     """Resolve a :class:`RunConfig`; raises :class:`InputError` on bad choices."""
     name, prof, path = load_run_profile(profile)
     settings = run_settings(prof, path)
@@ -218,7 +233,14 @@ class Plan:
                 for u in self.units]
 
 
-def _add(units: list[Unit], kind: str, title: str, inputs: dict, deps=(), **params) -> Unit:
+def _add(
+    units: list[Unit],
+    kind: str,
+    title: str,
+    inputs: dict,
+    deps: Iterable[str] = (),
+    **params: Any,
+) -> Unit:
     unit = Unit(kind, unit_key(kind, inputs), title, {**params, "inputs": inputs}, tuple(deps))
     units.append(unit)
     return unit
@@ -239,7 +261,7 @@ def _data_unit(cfg: RunConfig, units: list[Unit]) -> Unit:
                 inputs)
 
 
-def _table_cells(cfg: RunConfig):
+def _table_cells(cfg: RunConfig) -> Iterator[tuple[ColumnSpec, dict]]:
     """``(column, filters)`` of every cell of the chosen tables."""
     from ..report.tables import TABLES
 
@@ -269,14 +291,14 @@ def method_needs(cfg: RunConfig) -> dict[str, list[str]]:
     return {m: [p for p in order if p in sets] for m, sets in needs.items()}
 
 
-def _method_inputs(spec, kind: str) -> dict:
+def _method_inputs(spec: MethodSpec, kind: str) -> dict:
     """A method unit's identity: name, options, version and the code the unit runs (its
     stage module and the method's module, each with everything they import)."""
     return {"method": spec.name, "options": spec.options, "trainable": spec.trainable,
             "version": spec.version, "code": stage_code(kind, spec.factory.__module__)}
 
 
-def _train_identity(spec) -> dict:
+def _train_identity(spec: MethodSpec) -> dict:
     """What makes a checkpoint: the method, or its ``train_key()`` when it has one.
 
     GRIP variants that differ only at inference (``grip`` / ``grip-no-rnet``) report the
@@ -291,7 +313,7 @@ def _train_identity(spec) -> dict:
             "code": stage_code("checkpoint", spec.factory.__module__)}
 
 
-def _train_units(cfg, data: Unit, units: list[Unit]) -> dict[str, Unit | None]:
+def _train_units(cfg: RunConfig, data: Unit, units: list[Unit]) -> dict[str, Unit | None]:
     from ..methods.api import METHODS
 
     out: dict[str, Unit | None] = {}
@@ -318,7 +340,7 @@ def _train_units(cfg, data: Unit, units: list[Unit]) -> dict[str, Unit | None]:
     return out
 
 
-def _test_sets(cfg, data: Unit, units: list[Unit]) -> dict[str, Unit]:
+def _test_sets(cfg: RunConfig, data: Unit, units: list[Unit]) -> dict[str, Unit]:
     sets = {CLEAN: data}
     for label in cfg.perturbations:
         kind, sigma = parse_perturbation(label)
@@ -371,7 +393,14 @@ def _metric_inputs(cfg: RunConfig, label: str = CLEAN, method: str | None = None
             "options": asdict(eval_options(cfg)), "code": stage_code("metrics")}
 
 
-def _predict_eval_units(cfg, plan_units, data, sets, ckpts, dataset) -> None:
+def _predict_eval_units(
+    cfg: RunConfig,
+    plan_units: list[Unit],
+    data: Unit,
+    sets: dict[str, Unit],
+    ckpts: dict[str, Unit | None],
+    dataset: str,
+) -> None:
     from ..methods.api import METHODS
 
     for name, labels in method_needs(cfg).items():
@@ -412,7 +441,9 @@ def timed_methods(cfg: RunConfig) -> list[str]:
     return [m for m in cfg.methods if m in named]
 
 
-def _runtime_units(cfg, data: Unit, ckpts, units: list[Unit]) -> None:
+def _runtime_units(
+    cfg: RunConfig, data: Unit, ckpts: dict[str, Unit | None], units: list[Unit]
+) -> None:
     from ..methods.api import METHODS
 
     s = cfg.settings
@@ -455,7 +486,7 @@ def build_plan(cfg: RunConfig, cache: Cache) -> Plan:
     return Plan(units, cached, data.key, dataset)
 
 
-def eval_options(cfg: RunConfig):
+def eval_options(cfg: RunConfig) -> EvalOptions:
     """Evaluation options of the run (metrics.evaluate.EvalOptions); part of the metric keys."""
     from ..metrics.evaluate import EvalOptions
 

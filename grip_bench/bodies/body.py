@@ -141,7 +141,7 @@ def _levels(parents: tuple[int, ...]) -> list[list[int]]:
     return [[j for j in range(len(parents)) if depth[j] == d] for d in range(max(depth) + 1)]
 
 
-def _check(x, name: str, tail: tuple[int, ...], batch: int | None = None,
+def _check(x: torch.Tensor | np.ndarray, name: str, tail: tuple[int, ...], batch: int | None = None,
            dtype: torch.dtype | None = None) -> torch.Tensor:
     """Tensor ``(B, *tail)`` with finite values, or :class:`InputError` naming ``name``."""
     t = torch.as_tensor(x)
@@ -157,8 +157,8 @@ def _check(x, name: str, tail: tuple[int, ...], batch: int | None = None,
     return t if dtype is None else t.to(dtype)
 
 
-def _pose_rows(x, name: str, rows: int, batch: int, dtype: torch.dtype,
-               device: torch.device | None = None) -> torch.Tensor:
+def _pose_rows(x: torch.Tensor | np.ndarray | None, name: str, rows: int, batch: int,
+               dtype: torch.dtype, device: torch.device | None = None) -> torch.Tensor:
     """Axis-angle pose ``(B, rows, 3)`` or ``(B, 3 * rows)`` -> ``(B, rows, 3)``.
 
     ``None`` gives zeros.
@@ -221,9 +221,17 @@ class ProceduralBody(nn.Module):
                                for prev, lvl in zip(levels[:-1], levels[1:], strict=True)]
 
     # ------------------------------------------------------------------ FK
-    def forward(self, global_orient, body_pose, transl, left_hand_pose=None,
-                right_hand_pose=None, jaw_pose=None, leye_pose=None,
-                reye_pose=None) -> BodyOutput:
+    def forward(
+        self,
+        global_orient: torch.Tensor | np.ndarray,
+        body_pose: torch.Tensor | np.ndarray,
+        transl: torch.Tensor | np.ndarray,
+        left_hand_pose: torch.Tensor | np.ndarray | None = None,
+        right_hand_pose: torch.Tensor | np.ndarray | None = None,
+        jaw_pose: torch.Tensor | np.ndarray | None = None,
+        leye_pose: torch.Tensor | np.ndarray | None = None,
+        reye_pose: torch.Tensor | np.ndarray | None = None,
+    ) -> BodyOutput:
         """Forward kinematics.
 
         global_orient (B, 3), body_pose (B, 21, 3) or (B, 63), transl (B, 3) (pelvis
@@ -236,8 +244,16 @@ class ProceduralBody(nn.Module):
         transl = _check(transl, "transl", (3,), full.shape[0], full.dtype)
         return self._fk(full, transl)
 
-    def _full_pose(self, global_orient, body_pose, left_hand_pose, right_hand_pose,
-                   jaw_pose, leye_pose, reye_pose) -> torch.Tensor:
+    def _full_pose(
+        self,
+        global_orient: torch.Tensor | np.ndarray,
+        body_pose: torch.Tensor | np.ndarray,
+        left_hand_pose: torch.Tensor | np.ndarray | None,
+        right_hand_pose: torch.Tensor | np.ndarray | None,
+        jaw_pose: torch.Tensor | np.ndarray | None,
+        leye_pose: torch.Tensor | np.ndarray | None,
+        reye_pose: torch.Tensor | np.ndarray | None,
+    ) -> torch.Tensor:
         """Validate poses and stack the 55 local axis-angles ``(B, 55, 3)`` (SMPL-X order)."""
         go = _check(global_orient, "global_orient", (3,))
         dtype = go.dtype if go.dtype in (torch.float32, torch.float64) else torch.float32
@@ -308,7 +324,9 @@ class ProceduralBody(nn.Module):
                 float(off[SMPLX_INDEX[f"{s}_wrist"]].norm()))
 
     # ------------------------------------------------------------------ IK
-    def _swivel_basis(self, side: str, collar_rot: torch.Tensor, axis: torch.Tensor):
+    def _swivel_basis(
+        self, side: str, collar_rot: torch.Tensor, axis: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Unit vectors ``u, v (B, 3)`` spanning the plane normal to the shoulder-wrist ``axis``.
 
         ``u`` is the natural elbow direction (swivel 0); ``v`` is where a positive swivel
@@ -339,8 +357,16 @@ class ProceduralBody(nn.Module):
         dmin = math.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * math.cos(flex))
         return dmin, l1 + l2
 
-    def solve_arm(self, side: str, global_orient, body_pose, transl, wrist_pos, wrist_rot,
-                  swivel=None) -> tuple[torch.Tensor, torch.Tensor]:
+    def solve_arm(
+        self,
+        side: str,
+        global_orient: torch.Tensor | np.ndarray,
+        body_pose: torch.Tensor | np.ndarray,
+        transl: torch.Tensor | np.ndarray,
+        wrist_pos: torch.Tensor | np.ndarray,
+        wrist_rot: torch.Tensor | np.ndarray,
+        swivel: torch.Tensor | np.ndarray | float | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Analytic two-bone IK: place one wrist at ``wrist_pos`` with world rotation ``wrist_rot``.
 
         global_orient (B, 3), body_pose (B, 21, 3)|(B, 63), transl (B, 3): the body; its
@@ -380,7 +406,14 @@ class ProceduralBody(nn.Module):
             pose[:, SMPLX_INDEX[f"{side}_{name}"] - 1] = matrix_to_axis_angle(rot)
         return pose, reached
 
-    def _arm_geometry(self, side, collar, shoulder, target, swivel):
+    def _arm_geometry(
+        self,
+        side: str,
+        collar: torch.Tensor,
+        shoulder: torch.Tensor,
+        target: torch.Tensor,
+        swivel: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Shoulder world rotation ``(B, 3, 3)``, elbow flexion ``(B,)`` rad and reach flags."""
         l1, l2 = self.arm_lengths(side)
         dmin, dmax = self.arm_reach(side)

@@ -28,8 +28,10 @@ import contextlib
 import io
 import os
 import tempfile
+import types
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import torch
@@ -38,6 +40,9 @@ from torch import nn
 from grip_bench.bodies.layouts import SMPLX_INDEX, SMPLX_PARENTS, TIP_NAMES
 from grip_bench.core.errors import GripBenchError, InputError, MissingModelError
 from grip_bench.core.safe_pickle import load_npz, load_pickle
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = [
     "MODEL_PATH_ENV", "MANO_TIP_IDS", "MANOHand", "SMPLXBody", "SMPLXOutput",
@@ -60,7 +65,7 @@ _SMPLX_KEYS = {"v_template": (3,), "f": (3,), "weights": (55,), "J_regressor": N
                "hands_meanr": None, "lmk_faces_idx": None, "lmk_bary_coords": (3,)}
 
 
-def _import_smplx():
+def _import_smplx() -> types.ModuleType:
     """The ``smplx`` module, or a clear error naming the optional extra."""
     try:
         import smplx
@@ -131,7 +136,11 @@ def load_model_data(path: str | os.PathLike, required: dict[str, tuple | None] |
 
 
 # -------------------------------------------------------------- helpers
-def expand_pca(pca, components, mean=None) -> torch.Tensor:
+def expand_pca(
+    pca: torch.Tensor | np.ndarray,
+    components: torch.Tensor | np.ndarray,
+    mean: torch.Tensor | np.ndarray | None = None,
+) -> torch.Tensor:
     """PCA hand pose -> full axis-angle: ``pca (B, n) @ components[:n] (n, 45) + mean (45,)``.
 
     Returns ``(B, 15, 3)`` radians. ``mean`` is the model's hand mean, or ``None`` for
@@ -181,7 +190,13 @@ def seal_faces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, list[np.
     return sealed, loops
 
 
-def _batch(x, name: str, tail: tuple[int, ...], batch: int | None, dtype) -> torch.Tensor:
+def _batch(
+    x: torch.Tensor | np.ndarray,
+    name: str,
+    tail: tuple[int, ...],
+    batch: int | None,
+    dtype: torch.dtype,
+) -> torch.Tensor:
     """``(B, *tail)`` float tensor with finite values, or :class:`InputError` naming ``name``."""
     t = torch.as_tensor(x)
     if t.ndim != 1 + len(tail) or tuple(t.shape[1:]) != tail or (
@@ -193,7 +208,9 @@ def _batch(x, name: str, tail: tuple[int, ...], batch: int | None, dtype) -> tor
     return t.to(dtype)
 
 
-def _hand_pose(x, name: str, n_comps: int, batch: int, dtype) -> torch.Tensor:
+def _hand_pose(
+    x: torch.Tensor | np.ndarray | None, name: str, n_comps: int, batch: int, dtype: torch.dtype
+) -> torch.Tensor:
     """Hand pose as the smplx layer wants it: ``(B, n_comps)`` PCA or ``(B, 45)`` axis-angle."""
     if x is None:
         return torch.zeros(batch, n_comps, dtype=dtype)
@@ -203,7 +220,9 @@ def _hand_pose(x, name: str, n_comps: int, batch: int, dtype) -> torch.Tensor:
     return _batch(t, name, (n_comps,), batch, dtype)
 
 
-def _betas(betas, num_betas: int, batch: int, dtype) -> torch.Tensor:
+def _betas(
+    betas: torch.Tensor | np.ndarray | None, num_betas: int, batch: int, dtype: torch.dtype
+) -> torch.Tensor:
     """Shape coefficients ``(B, num_betas)``; ``None`` = the mean shape, ``(1, n)`` broadcasts."""
     if betas is None:
         return torch.zeros(batch, num_betas, dtype=dtype)
@@ -214,7 +233,7 @@ def _betas(betas, num_betas: int, batch: int, dtype) -> torch.Tensor:
 
 
 @contextlib.contextmanager
-def _quiet():
+def _quiet() -> Iterator[None]:
     """Silence smplx's construction-time prints (shape-space warnings)."""
     with contextlib.redirect_stdout(io.StringIO()):
         yield
@@ -234,8 +253,9 @@ class MANOHand(nn.Module):
 
     def __init__(self, side: str = "right", model_path: str | os.PathLike | None = None,
                  n_comps: int = 45, flat_hand_mean: bool = True, num_betas: int = 10,
-                 v_template=None, wrist_origin: bool = False,
-                 tip_ids: tuple[int, ...] = MANO_TIP_IDS, dtype=torch.float32):
+                 v_template: torch.Tensor | np.ndarray | None = None,
+                 wrist_origin: bool = False, tip_ids: tuple[int, ...] = MANO_TIP_IDS,
+                 dtype: torch.dtype = torch.float32):
         super().__init__()
         if side not in ("right", "left"):
             raise InputError(f"expected 'left' or 'right', got {side!r}", "side")
@@ -264,15 +284,20 @@ class MANOHand(nn.Module):
             np.zeros(45) if flat_hand_mean else data["hands_mean"], dtype=dtype).reshape(45))
         self.tip_names = TIP_NAMES
 
-    def full_hand_pose(self, hand_pose) -> torch.Tensor:
+    def full_hand_pose(self, hand_pose: torch.Tensor | np.ndarray) -> torch.Tensor:
         """Absolute axis-angle ``(B, 15, 3)`` of a pose in this model's convention."""
         t = torch.as_tensor(hand_pose, dtype=self.components.dtype)
         if self.n_comps == 45:
             return t.reshape(t.shape[0], 15, 3) + self.hand_mean.reshape(15, 3)
         return expand_pca(t, self.components, None if self.flat_hand_mean else self.hand_mean)
 
-    def forward(self, global_orient, hand_pose, transl, betas=None
-                ) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self,
+        global_orient: torch.Tensor | np.ndarray,
+        hand_pose: torch.Tensor | np.ndarray,
+        transl: torch.Tensor | np.ndarray,
+        betas: torch.Tensor | np.ndarray | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Posed hand.
 
         global_orient (B, 3), hand_pose (B, n_comps) PCA or (B, 15, 3)|(B, 45) axis-angle,
@@ -302,7 +327,7 @@ class MANOHand(nn.Module):
         centres = [verts[:, torch.as_tensor(loop)].mean(dim=1, keepdim=True) for loop in self.loops]
         return torch.cat([verts, *centres], dim=1)
 
-    def mesh(self, vertices):
+    def mesh(self, vertices: torch.Tensor | np.ndarray) -> trimesh.Trimesh:
         """A :class:`trimesh.Trimesh` (float64) of one posed hand ``(V, 3)``."""
         import trimesh
 
@@ -331,7 +356,9 @@ class SMPLXBody(nn.Module):
 
     def __init__(self, model_path: str | os.PathLike | None = None, gender: str = "neutral",
                  n_comps: int = 45, flat_hand_mean: bool = False, num_betas: int = 10,
-                 num_expression_coeffs: int = 10, v_template=None, dtype=torch.float32):
+                 num_expression_coeffs: int = 10,
+                 v_template: torch.Tensor | np.ndarray | None = None,
+                 dtype: torch.dtype = torch.float32):
         super().__init__()
         if gender not in ("neutral", "male", "female"):
             raise InputError(f"expected neutral, male or female, got {gender!r}", "gender")
@@ -352,7 +379,9 @@ class SMPLXBody(nn.Module):
         self.faces = np.asarray(data["f"], dtype=np.int64)
 
     @staticmethod
-    def _build(smplx, data: dict[str, np.ndarray], gender: str, kwargs: dict[str, Any]):
+    def _build(
+        smplx: types.ModuleType, data: dict[str, np.ndarray], gender: str, kwargs: dict[str, Any]
+    ) -> Any:
         """``smplx.SMPLX`` from a temporary numeric-only ``.npz`` (it cannot take arrays)."""
         with tempfile.TemporaryDirectory(
             prefix="grip_bench_smplx_", ignore_cleanup_errors=True
@@ -368,9 +397,19 @@ class SMPLXBody(nn.Module):
                     create_transl=False, **kwargs)
         return layer
 
-    def forward(self, global_orient, body_pose, transl, left_hand_pose=None,
-                right_hand_pose=None, jaw_pose=None, leye_pose=None, reye_pose=None,
-                expression=None, betas=None) -> SMPLXOutput:
+    def forward(
+        self,
+        global_orient: torch.Tensor | np.ndarray,
+        body_pose: torch.Tensor | np.ndarray,
+        transl: torch.Tensor | np.ndarray,
+        left_hand_pose: torch.Tensor | np.ndarray | None = None,
+        right_hand_pose: torch.Tensor | np.ndarray | None = None,
+        jaw_pose: torch.Tensor | np.ndarray | None = None,
+        leye_pose: torch.Tensor | np.ndarray | None = None,
+        reye_pose: torch.Tensor | np.ndarray | None = None,
+        expression: torch.Tensor | np.ndarray | None = None,
+        betas: torch.Tensor | np.ndarray | None = None,
+    ) -> SMPLXOutput:
         """Posed body: poses axis-angle (hands PCA when n_comps < 45), transl (B, 3) m.
 
         global_orient (B, 3), body_pose (B, 21, 3)|(B, 63), hand poses (B, n_comps) or

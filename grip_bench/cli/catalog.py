@@ -8,6 +8,10 @@ home of that fact.
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ..core.registry import Registry
 
 # kind -> (module, attribute) of a Registry whose entries have ``describe() -> str``
 _SOURCES = {
@@ -17,7 +21,7 @@ _SOURCES = {
 }
 
 
-def registry(kind: str):
+def registry(kind: str) -> Registry[Any] | None:
     """The registry of ``kind``, or ``None`` while that part of the suite does not exist yet."""
     module, attr = _SOURCES[kind]
     try:

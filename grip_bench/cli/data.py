@@ -11,20 +11,27 @@ import argparse
 import json
 import math
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.errors import InputError
+
+if TYPE_CHECKING:
+    from ..data.grab_io import ManoBackend
 
 _COMMANDS = []
 
 
-def data_command(fn):
+def data_command(
+    fn: Callable[[argparse._SubParsersAction], None],
+) -> Callable[[argparse._SubParsersAction], None]:
     """Register ``fn(subparsers)`` as a ``grip-bench data`` subcommand."""
     _COMMANDS.append(fn)
     return fn
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("data", help="inspect, perturb (and generate) GRAB-layout data",
                        description="Work with GRAB-layout datasets (DATA/grab/s<k>/*.npz).")
     inner = p.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
@@ -33,7 +40,7 @@ def register(sub) -> None:
         add(inner)
 
 
-def _mano(args):
+def _mano(args: argparse.Namespace) -> ManoBackend | None:
     """MANO backend from ``--model-path`` (None without it)."""
     if not getattr(args, "model_path", None):
         return None
@@ -44,7 +51,7 @@ def _mano(args):
 
 # --- info -------------------------------------------------------------------------
 @data_command
-def add_info(sub) -> None:
+def add_info(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("info", help="summarise a sequence file or a dataset folder",
                        description="A sequence .npz: frames, fps, subject, object, intent, "
                        "duration, contact frames (the file is fully read and validated). "
@@ -55,7 +62,7 @@ def add_info(sub) -> None:
     p.set_defaults(func=run_info)
 
 
-def sequence_info(path: Path, mano_backend=None) -> dict:
+def sequence_info(path: Path, mano_backend: ManoBackend | None = None) -> dict:
     """Summary of one sequence file (fully read and validated)."""
     from ..data.grab_io import read_grab, read_grab_header
 
@@ -103,7 +110,9 @@ def dataset_info(data_dir: Path) -> dict:
     return info
 
 
-def _safe_split(obj: str, splits, split_of) -> str:
+def _safe_split(
+    obj: str, splits: dict[str, list[str]], split_of: Callable[[str, dict], str]
+) -> str:
     try:
         return split_of(obj, splits)
     except InputError:
@@ -135,7 +144,7 @@ def run_info(args: argparse.Namespace) -> int:
 
 # --- perturb --------------------------------------------------------------------------
 @data_command
-def add_perturb(sub) -> None:
+def add_perturb(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "perturb", help="write a noisy copy of a split (TOCH GRAB-T / GRAB-R, ANet arm noise)",
         description="Per-frame i.i.d. Gaussian noise, seeded. --kind T: hand translation "
@@ -154,7 +163,7 @@ def add_perturb(sub) -> None:
     p.set_defaults(func=run_perturb)
 
 
-def _parse_sigma(text: str | None, kind: str):
+def _parse_sigma(text: str | None, kind: str) -> float | tuple[float, ...] | None:
     if text is None:
         return None
     try:
@@ -186,7 +195,7 @@ def run_perturb(args: argparse.Namespace) -> int:
 
 # --- synth ------------------------------------------------------------------------------
 @data_command
-def add_synth(sub) -> None:
+def add_synth(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "synth", help="generate SynthGRAB, the built-in GRAB-like dataset",
         formatter_class=argparse.RawDescriptionHelpFormatter,

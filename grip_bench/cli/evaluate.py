@@ -36,7 +36,7 @@ def _metrics_epilog() -> str:
     return "\n".join(lines)
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     from ..core.constants import EVAL_MAX_PHYSICS_FRAMES
 
     p = sub.add_parser("evaluate", help="score predicted sequences against the ground truth",

@@ -10,17 +10,22 @@ GRAB's row-vector transform ``v @ R + t``.
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.errors import InputError
 from ..data.posing import hand_poser, load_object_mesh_of
 
+if TYPE_CHECKING:
+    from ..data.sequence import Sequence
+
 CHUNK = 256  # frames posed per batch (bounds memory on long sequences)
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help="write per-frame PLY meshes of the hands and the object",
                        description=__doc__.split("\n\n", 1)[1],
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -54,7 +59,9 @@ def _write_ply(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
     trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(path)
 
 
-def export_sequence(seq, out_dir: Path, frames: range, model_path=None) -> int:
+def export_sequence(
+    seq: Sequence, out_dir: Path, frames: range, model_path: str | os.PathLike | None = None
+) -> int:
     """Write the PLY meshes of ``frames``; returns the number of files written.
 
     Everything that can fail on input (mesh, hand models) is checked before ``out_dir``

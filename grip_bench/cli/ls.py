@@ -7,7 +7,7 @@ import argparse
 KINDS = ("methods", "metrics", "tables")
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("ls", help="list registered methods, metrics or tables",
                        description="List what the suite knows about. With no argument, all three.")
     p.add_argument("kind", nargs="?", choices=KINDS, help="which list (default: all)")

@@ -6,6 +6,10 @@ import argparse
 import hashlib
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..data.sequence import Sequence
 
 DESCRIPTION = """\
 Run METHOD (loaded from --checkpoint) on one SEQ.npz or on every sequence of a data
@@ -21,7 +25,7 @@ runs GRIP's networks in bfloat16 (~4x faster GEMMs on CPUs with AVX512-BF16, ~3
 significant digits; the default fp32 is what the tables use)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "predict",
         help="run a trained method and write its sequences",
@@ -77,7 +81,7 @@ def sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..bench.stages.predict import predict_files
     from ..core.errors import InputError
     from ..data.library import ObjectLibrary
@@ -97,7 +101,7 @@ def run(args) -> int:
                          precision=args.precision, data_dir=root, split=args.split)
     seconds = {}
 
-    def done(seq, secs: float) -> None:
+    def done(seq: Sequence, secs: float) -> None:
         seconds[seq.name] = {"seconds": secs, "frames": seq.n_frames}
 
     # the runner's prediction stage does the same (one torch thread, meshes and splits)
@@ -110,7 +114,7 @@ def run(args) -> int:
     return 0
 
 
-def _write_manifest(args, root: Path, seconds: dict) -> None:
+def _write_manifest(args: argparse.Namespace, root: Path, seconds: dict) -> None:
     from ..core.io import atomic_write_text
     from ..core.version import __version__
 

@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="re-render tables, leaderboard and figures of a run",
                        description="Read OUT/results.csv, OUT/runtime.csv and the saved figure "
                        "data and write OUT/tables/, OUT/leaderboard.* and OUT/figures/ again, "

@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+import types
+from typing import NoReturn
 
 EPILOG = """\
 profiles: smoke (minutes on a CPU), default (SynthGRAB default data), paper (GRIP's
@@ -17,7 +19,7 @@ finished unit; `grip-bench report OUT` re-renders the report without recomputing
 """
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run the whole benchmark (resumable)",
                        description="Build or reuse the data, make the perturbed test sets, "
                        "train every method the tables need, predict, evaluate and report.",
@@ -42,7 +44,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _interrupt(signum, frame):
+def _interrupt(signum: int, frame: types.FrameType | None) -> NoReturn:
     # SIGTERM as Ctrl-C: unfinished units are removed on the way out (exit code 130)
     raise KeyboardInterrupt
 

@@ -13,7 +13,7 @@ tests; default: the benchmark's; paper: GRIP's network sizes). An interrupted GR
 training resumes from <out>.partial when re-run with the same arguments."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "train",
         help="train a method and write its checkpoint",
@@ -35,7 +35,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..bench.stages.train import train_checkpoint
     from ..core.errors import InputError
     from ..methods.api import TrainContext, load_all

@@ -14,9 +14,11 @@ memory) and compares keys and shapes, so a wrong file fails with a readable
 from __future__ import annotations
 
 import dataclasses
+import os
 import pickle
 import typing
 from collections import OrderedDict
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +36,7 @@ _PLAIN = (str, int, float, bool, type(None))
 _SHOW = 5  # how many offending keys an error message names
 
 
-def _check_plain(value, where: str) -> None:
+def _check_plain(value: object, where: str) -> None:
     """Raise ``InputError`` if ``value`` holds anything ``weights_only`` would refuse."""
     if type(value) in (dict, OrderedDict):
         for k, v in value.items():
@@ -48,7 +50,9 @@ def _check_plain(value, where: str) -> None:
         raise InputError(f"cannot store a {type(value).__name__} (plain data only)", where=where)
 
 
-def save_checkpoint(path, *, model_state: dict, configs: dict, meta: dict | None = None) -> Path:
+def save_checkpoint(
+    path: str | os.PathLike, *, model_state: dict, configs: dict, meta: dict | None = None
+) -> Path:
     """Write a checkpoint atomically (temp file + ``os.replace``); returns the path.
 
     model_state: {name: state_dict}; configs: {name: config dataclass} with the same
@@ -122,7 +126,7 @@ def _read(path: Path) -> dict:
     return payload
 
 
-def _config_from_dict(cls, fields: dict, where: str):
+def _config_from_dict(cls: type, fields: dict, where: str) -> typing.Any:
     """Rebuild a config dataclass; unknown fields and wrong types are InputErrors."""
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(fields) - known)
@@ -144,13 +148,13 @@ def _config_from_dict(cls, fields: dict, where: str):
         raise InputError(f"invalid config: {e}", where=where) from None
 
 
-def _names(keys) -> str:
+def _names(keys: Iterable[str]) -> str:
     keys = sorted(keys)
     more = f" (+{len(keys) - _SHOW} more)" if len(keys) > _SHOW else ""
     return ", ".join(keys[:_SHOW]) + more
 
 
-def _check_state(cfg, state: dict, where: str) -> None:
+def _check_state(cfg: typing.Any, state: dict, where: str) -> None:
     """Compare ``state`` to a fresh model's state dict: same keys, same shapes."""
     with torch.device("meta"):
         reference = cfg.build().state_dict()
@@ -171,7 +175,7 @@ def _check_state(cfg, state: dict, where: str) -> None:
             )
 
 
-def load_checkpoint(path, expected: dict[str, type]) -> Checkpoint:
+def load_checkpoint(path: str | os.PathLike, expected: dict[str, type]) -> Checkpoint:
     """Load and check a checkpoint.
 
     expected: {network name: config class} (e.g. ``{"cnet": CNetConfig}``); networks in

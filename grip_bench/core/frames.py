@@ -13,7 +13,12 @@ Conventions (``docs/architecture.md``, "Conventions"):
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
+
+if TYPE_CHECKING:
+    import torch
 
 SIDES = ("right", "left")  # report, metric and file order of the hands
 NET_SIDES = ("left", "right")  # hand order of the networks' (T, 2, ...) arrays
@@ -22,29 +27,31 @@ _POINT_SIGN = np.array([-1.0, 1.0, 1.0])
 _AXIS_ANGLE_SIGN = np.array([1.0, -1.0, -1.0])
 
 
-def mirror_points(p):
+def mirror_points(p: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
     """x-mirror of points: ``(x, y, z) -> (-x, y, z)``; numpy or torch ``(..., 3)``."""
     return p * (p.new_tensor(_POINT_SIGN) if hasattr(p, "new_tensor") else _POINT_SIGN)
 
 
-def mirror_axis_angle(aa):
+def mirror_axis_angle(aa: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
     """Axis-angle of the x-mirrored rotation: ``(ax, ay, az) -> (ax, -ay, -az)``; ``(..., 3)``."""
     return aa * (aa.new_tensor(_AXIS_ANGLE_SIGN) if hasattr(aa, "new_tensor") else _AXIS_ANGLE_SIGN)
 
 
-def mirror_pose(aa) -> np.ndarray:
+def mirror_pose(aa: np.ndarray) -> np.ndarray:
     """Mirror flat axis-angle poses ``(..., 3k)`` between the hands (each joint as above)."""
     a = np.asarray(aa, float)
     return mirror_axis_angle(a.reshape(*a.shape[:-1], -1, 3)).reshape(a.shape)
 
 
-def object_pose(seq) -> tuple[np.ndarray, np.ndarray]:
+def object_pose(seq: Any) -> tuple[np.ndarray, np.ndarray]:
     """Object pose as column rotations ``R (T, 3, 3)`` and translations ``t (T, 3)``:
     ``world = R @ local + t`` (the transpose of GRAB's row-vector matrices)."""
     return np.transpose(seq.object_rotations(), (0, 2, 1)), np.asarray(seq.object["transl"], float)
 
 
-def world_to_object(points: np.ndarray, rotations: np.ndarray, translations: np.ndarray):
+def world_to_object(
+    points: np.ndarray, rotations: np.ndarray, translations: np.ndarray
+) -> np.ndarray:
     """World points into the object's frame at each frame: ``(points - t_t) @ R_t^T``.
 
     points: (T, N, 3) (any (T, ..., 3) goes through einsum); rotations: (T, 3, 3) in GRAB's

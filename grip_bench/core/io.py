@@ -15,7 +15,7 @@ import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 
@@ -66,7 +66,7 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def jsonable(obj):
+def jsonable(obj: Any) -> Any:
     """Map inputs to plain JSON types; arrays are represented by a digest of their bytes."""
     if isinstance(obj, dict):
         return {str(k): jsonable(v) for k, v in obj.items()}

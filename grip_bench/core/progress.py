@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterable
+from typing import Any
 
 
-def bar(items, desc: str, enabled: bool, unit: str = "unit"):
+def bar(items: Iterable[Any], desc: str, enabled: bool, unit: str = "unit") -> Iterable[Any]:
     """A tqdm progress bar on stderr (a plain iterator when progress is off)."""
     if not enabled:
         return items

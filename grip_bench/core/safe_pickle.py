@@ -25,7 +25,7 @@ import io
 import os
 import pickle
 import zipfile
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -77,7 +77,7 @@ class ChumpyArray:
             state = state[0]  # (dict state, slot state)
         self.x = state.get("x") if isinstance(state, dict) else None
 
-    def __array__(self, dtype=None, copy=None):
+    def __array__(self, dtype: Any = None, copy: bool | None = None) -> np.ndarray:
         return np.asarray(self.x, dtype=dtype)
 
 
@@ -102,7 +102,7 @@ class _SparseShell:
         return cls((s["data"], s["indices"], s["indptr"]), shape=shape).toarray()
 
 
-def _reconstructor(cls, base, state):
+def _reconstructor(cls: Any, base: Any, state: Any) -> Any:
     """Safe replacement of ``copyreg._reconstructor`` for our shell classes only."""
     obj = cls.__new__(cls) if not callable(cls) or isinstance(cls, type) else cls()
     return obj
@@ -111,14 +111,14 @@ def _reconstructor(cls, base, state):
 class RestrictedUnpickler(pickle.Unpickler):
     """An unpickler that resolves only plain-data classes (see module docstring)."""
 
-    def __init__(self, file, *, allow_chumpy: bool = False, allow_sparse: bool = False,
+    def __init__(self, file: IO[bytes], *, allow_chumpy: bool = False, allow_sparse: bool = False,
                  source: str = "<stream>"):
         super().__init__(file, encoding="latin1")
         self.allow_chumpy = allow_chumpy
         self.allow_sparse = allow_sparse
         self.source = source
 
-    def find_class(self, module: str, name: str):
+    def find_class(self, module: str, name: str) -> Any:
         module, name = _py3_name(module, name)
         if (module, name) in _ALLOWED or (module in _DTYPE_MODULES and _is_dtype_name(name)):
             return super().find_class(module, name)
@@ -161,12 +161,12 @@ def _is_dtype_name(name: str) -> bool:
     return name.isidentifier() and name.endswith("DType") and not name.startswith("_")
 
 
-def _make_sparse_factory(kind: str):
+def _make_sparse_factory(kind: str) -> type[_SparseShell]:
     class _Sparse(_SparseShell):
-        def __init__(self, *args, **kwargs):
+        def __init__(self, *args: Any, **kwargs: Any):
             super().__init__(kind)
 
-        def __new__(cls, *args, **kwargs):
+        def __new__(cls, *args: Any, **kwargs: Any) -> _SparseShell:
             obj = object.__new__(cls)
             obj.kind = kind
             obj.state = {}

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Iterator
 
 
 @contextlib.contextmanager
-def single_thread():
+def single_thread() -> Iterator[None]:
     """Run torch on one intra-op thread inside the block (restored after).
 
     Feature building and the baselines' networks work on small tensors: a second thread

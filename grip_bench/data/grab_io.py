@@ -376,8 +376,8 @@ def _flat_flags(entries: dict[str, dict], override: bool | None, path: Path) -> 
     return flags
 
 
-def _full_hand_poses(parts: dict[str, dict], n_comps: int, backend, flat: dict[str, bool],
-                     path: Path) -> None:
+def _full_hand_poses(parts: dict[str, dict], n_comps: int, backend: ManoBackend | None,
+                     flat: dict[str, bool], path: Path) -> None:
     """Replace PCA hand poses by full axis-angle (T, 45) in place; add the mean where not flat."""
     changed = set()
     for part, key, side in _HAND_POSE_KEYS:
@@ -409,7 +409,7 @@ def _hand_fullpose_48(p: dict[str, np.ndarray], changed: bool, where: str) -> No
         p["fullpose"] = hand_fullpose(p["global_orient"], p["hand_pose"])
 
 
-def _expand(backend, side: str, coeffs: np.ndarray, where: str) -> np.ndarray:
+def _expand(backend: ManoBackend | None, side: str, coeffs: np.ndarray, where: str) -> np.ndarray:
     if backend is None:
         raise MissingModelError(
             f"hand poses are {coeffs.shape[1]} MANO PCA coefficients; expanding them to full "
@@ -421,7 +421,7 @@ def _expand(backend, side: str, coeffs: np.ndarray, where: str) -> np.ndarray:
     return full.astype(coeffs.dtype, copy=False)
 
 
-def _hands_mean(backend, side: str, where: str) -> np.ndarray:
+def _hands_mean(backend: ManoBackend | None, side: str, where: str) -> np.ndarray:
     if backend is None:
         raise MissingModelError("these hand poses are offsets from MANO's mean hand "
                                 "(flat_hand_mean=False, GRAB's SMPL-X convention); adding the "

@@ -8,12 +8,19 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.errors import InputError
 from ..core.frames import world_to_object
 from .grab_io import object_mesh_path
+
+if TYPE_CHECKING:
+    import trimesh
+
+    from ..geometry.distance import DistanceField
+    from .sequence import Sequence
 
 
 class ObjectLibrary:
@@ -24,7 +31,7 @@ class ObjectLibrary:
         self.mesh = lru_cache(maxsize=None)(self._load_mesh)
         self.field = lru_cache(maxsize=64)(self._build_field)
 
-    def _load_mesh(self, name: str):
+    def _load_mesh(self, name: str) -> trimesh.Trimesh:
         """Watertight canonical mesh of ``name`` (trimesh, metres, object frame)."""
         from ..geometry.meshes import load_object_mesh
 
@@ -33,12 +40,12 @@ class ObjectLibrary:
             raise InputError(f"object mesh not found: {path}", f"object '{name}'")
         return load_object_mesh(path)
 
-    def _build_field(self, name: str):
+    def _build_field(self, name: str) -> DistanceField:
         from ..geometry.distance import DistanceField
 
         return DistanceField(self.mesh(name))
 
-    def world_to_object(self, seq, points: np.ndarray) -> np.ndarray:
+    def world_to_object(self, seq: Sequence, points: np.ndarray) -> np.ndarray:
         """World points (T, N, 3) -> the object's frame at each frame (T, N, 3)
         (:func:`grip_bench.core.frames.world_to_object`)."""
         return world_to_object(points, seq.object_rotations(), seq.object["transl"])

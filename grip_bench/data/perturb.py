@@ -34,6 +34,7 @@ import os
 import shutil
 import tempfile
 import zlib
+from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 
@@ -67,7 +68,7 @@ ARM_JOINTS = {
 _BODY_FULLPOSE_HAND = {"left": 25 * 3, "right": 40 * 3}
 
 
-def _arm_sigmas(sigma) -> tuple[float, float]:
+def _arm_sigmas(sigma: float | Iterable[float] | None) -> tuple[float, float]:
     """(shoulder, elbow) sigmas from None (ANet's), a number (both) or a pair."""
     if sigma is None:
         return DEFAULT_SIGMA["arm"]
@@ -79,13 +80,15 @@ def _arm_sigmas(sigma) -> tuple[float, float]:
     return s
 
 
-def _check_sigma(values) -> None:
+def _check_sigma(values: float | tuple[float, ...]) -> None:
     for s in np.atleast_1d(values):
         if not np.isfinite(s) or s < 0:
             raise InputError(f"noise sigma must be a finite number >= 0, got {s}", "sigma")
 
 
-def resolve_sigma(kind: str, sigma=None) -> float | tuple[float, float]:
+def resolve_sigma(
+    kind: str, sigma: float | Iterable[float] | None = None
+) -> float | tuple[float, float]:
     """Checked sigma for ``kind``: a float for T (m) and R (rad), (shoulder, elbow) for arm."""
     if kind not in KINDS:
         raise InputError(f"unknown perturbation kind {kind!r} (allowed: {list(KINDS)})", "kind")
@@ -100,7 +103,7 @@ def resolve_sigma(kind: str, sigma=None) -> float | tuple[float, float]:
     return sig
 
 
-def _noisy(a: np.ndarray, rng: np.random.Generator, sigma) -> np.ndarray:
+def _noisy(a: np.ndarray, rng: np.random.Generator, sigma: float) -> np.ndarray:
     """``a + N(0, sigma^2)`` per entry, drawn in float64, returned in ``a``'s dtype."""
     return _add(a, rng.normal(0.0, 1.0, size=a.shape) * sigma)
 
@@ -109,12 +112,12 @@ def _add(a: np.ndarray, noise: np.ndarray) -> np.ndarray:
     return (a + noise).astype(a.dtype)
 
 
-def _perturb_translation(seq: Sequence, sigma: float, rng) -> dict:
+def _perturb_translation(seq: Sequence, sigma: float, rng: np.random.Generator) -> dict:
     return {part: {**getattr(seq, part), "transl": _noisy(getattr(seq, part)["transl"], rng, sigma)}
             for part in ("rhand", "lhand")}
 
 
-def _perturb_hand_pose(seq: Sequence, sigma: float, rng) -> dict:
+def _perturb_hand_pose(seq: Sequence, sigma: float, rng: np.random.Generator) -> dict:
     out = {"body": dict(seq.body)}
     body_full = seq.body["fullpose"].copy()
     for side, part in (("right", "rhand"), ("left", "lhand")):
@@ -131,7 +134,9 @@ def _perturb_hand_pose(seq: Sequence, sigma: float, rng) -> dict:
     return out
 
 
-def _perturb_arm(seq: Sequence, sigmas: tuple[float, float], rng) -> dict:
+def _perturb_arm(
+    seq: Sequence, sigmas: tuple[float, float], rng: np.random.Generator
+) -> dict:
     body_pose = seq.body["body_pose"].copy()
     full = seq.body["fullpose"].copy()
     joints = [*ARM_JOINTS["shoulder"], *ARM_JOINTS["elbow"]]
@@ -147,7 +152,7 @@ def _perturb_arm(seq: Sequence, sigmas: tuple[float, float], rng) -> dict:
     return {"body": {**seq.body, "body_pose": body_pose, "fullpose": full}}
 
 
-def perturb_sequence(seq: Sequence, kind: str, sigma=None,
+def perturb_sequence(seq: Sequence, kind: str, sigma: float | Iterable[float] | None = None,
                      rng: np.random.Generator | int | None = None) -> Sequence:
     """A perturbed copy of ``seq`` (see the module table). The input is not modified.
 
@@ -211,8 +216,9 @@ def _prepare_out(in_dir: Path, out_dir: Path) -> Path:
     return Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.tmp-"))
 
 
-def perturb_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, kind: str, sigma=None,
-                    seed: int = 0, split: str | None = "test", *,
+def perturb_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, kind: str,
+                    sigma: float | Iterable[float] | None = None, seed: int = 0,
+                    split: str | None = "test", *,
                     mano_backend: ManoBackend | None = None) -> Path:
     """Write a perturbed copy of one split of ``in_dir`` to ``out_dir`` (GRAB layout).
 
@@ -245,7 +251,14 @@ def perturb_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, kind:
     return out_dir / "manifest.json"
 
 
-def _manifest(in_dir: Path, kind: str, sigma, seed: int, split, names: list[str]) -> dict:
+def _manifest(
+    in_dir: Path,
+    kind: str,
+    sigma: float | Iterable[float] | None,
+    seed: int,
+    split: str | None,
+    names: list[str],
+) -> dict:
     sig = resolve_sigma(kind, sigma)
     return {
         "generator": "grip_bench.data.perturb", "suite_version": __version__,

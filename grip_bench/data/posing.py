@@ -10,14 +10,19 @@ keypoints (T, 21, 3); ``poser.faces(side)`` the watertight faces.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.errors import InputError, MissingModelError
 
+if TYPE_CHECKING:
+    from .sequence import Sequence
 
-def load_object_mesh_of(seq) -> tuple[np.ndarray, np.ndarray]:
+
+def load_object_mesh_of(seq: Sequence) -> tuple[np.ndarray, np.ndarray]:
     """Object template vertices (N, 3) and faces (F, 3) from the sequence's mesh file."""
     import trimesh
 
@@ -36,7 +41,7 @@ def load_object_mesh_of(seq) -> tuple[np.ndarray, np.ndarray]:
 class ProceduralPoser:
     """Poses one procedural hand per side (watertight by construction)."""
 
-    def __init__(self, seq):
+    def __init__(self, seq: Sequence):
         from ..bodies.hand import ProceduralHand
 
         scale = seq.hand_scale or 1.0
@@ -68,7 +73,7 @@ class MANOPoser:
     The subject's personal hand template (``rhand_vtemp``) is used when the file names one.
     """
 
-    def __init__(self, seq, model_path):
+    def __init__(self, seq: Sequence, model_path: str | os.PathLike | None):
         if not model_path:
             raise MissingModelError("this sequence uses SMPL-X/MANO hands: pass --model-path",
                                     f"{seq.source}: body_model")
@@ -95,7 +100,7 @@ class MANOPoser:
         return self.pose(side, p, sl)[0]
 
 
-def _vtemp(seq, side: str) -> np.ndarray | None:
+def _vtemp(seq: Sequence, side: str) -> np.ndarray | None:
     """The subject's hand template vertices (V, 3) named by the file, or None (mean shape)."""
     import trimesh
 
@@ -112,7 +117,9 @@ def _vtemp(seq, side: str) -> np.ndarray | None:
     return np.asarray(trimesh.load(path, force="mesh", process=False).vertices, np.float32)
 
 
-def hand_poser(seq, model_path=None):
+def hand_poser(
+    seq: Sequence, model_path: str | os.PathLike | None = None
+) -> ProceduralPoser | MANOPoser:
     """The hand backend a sequence needs: procedural, or MANO (requires ``model_path``)."""
     if seq.body_model == "procedural":
         return ProceduralPoser(seq)

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
 from ..bodies.layouts import SMPLX_INDEX, SMPLX_JOINTS
@@ -73,9 +74,17 @@ def body_fullpose(p: dict[str, np.ndarray]) -> np.ndarray:
     return np.concatenate([p[k] for k in keys], axis=-1)
 
 
-def make_body_params(global_orient, body_pose, transl, left_hand_pose, right_hand_pose,
-                     jaw_pose=None, leye_pose=None, reye_pose=None, expression=None
-                     ) -> dict[str, np.ndarray]:
+def make_body_params(
+    global_orient: ArrayLike,
+    body_pose: ArrayLike,
+    transl: ArrayLike,
+    left_hand_pose: ArrayLike,
+    right_hand_pose: ArrayLike,
+    jaw_pose: ArrayLike | None = None,
+    leye_pose: ArrayLike | None = None,
+    reye_pose: ArrayLike | None = None,
+    expression: ArrayLike | None = None,
+) -> dict[str, np.ndarray]:
     """Body params dict with face terms defaulting to zero and ``fullpose`` filled in.
 
     Shapes: (T, 3), (T, 63), (T, 3), (T, 45), (T, 45); optional (T, 3) x3, (T, 10).
@@ -94,7 +103,9 @@ def make_body_params(global_orient, body_pose, transl, left_hand_pose, right_han
     return p
 
 
-def make_hand_params(global_orient, hand_pose, transl) -> dict[str, np.ndarray]:
+def make_hand_params(
+    global_orient: ArrayLike, hand_pose: ArrayLike, transl: ArrayLike
+) -> dict[str, np.ndarray]:
     """Hand params dict of one hand.
 
     ``{global_orient (T,3), hand_pose (T,45), transl (T,3), fullpose (T,48)}``.
@@ -104,12 +115,12 @@ def make_hand_params(global_orient, hand_pose, transl) -> dict[str, np.ndarray]:
     return {"global_orient": go, "hand_pose": hp, "transl": tr, "fullpose": hand_fullpose(go, hp)}
 
 
-def make_rigid_params(global_orient, transl) -> dict[str, np.ndarray]:
+def make_rigid_params(global_orient: ArrayLike, transl: ArrayLike) -> dict[str, np.ndarray]:
     """Object / table params ``{global_orient (T,3), transl (T,3)}``."""
     return {"global_orient": np.asarray(global_orient), "transl": np.asarray(transl)}
 
 
-def _where(source, key: str) -> str:
+def _where(source: str | Path | None, key: str) -> str:
     return f"{source}: {key}" if source else key
 
 
@@ -215,7 +226,7 @@ class Sequence:
         """Copy with frames ``[start, stop)`` (Python slice semantics) of every (T, ...) array."""
         return self.take(slice(start, stop))
 
-    def take(self, index) -> Sequence:
+    def take(self, index: slice | ArrayLike) -> Sequence:
         """Copy with frames ``index`` (a slice, integer indices or a boolean mask over T)
         of every (T, ...) array."""
         cut = lambda d: {k: np.array(v[index]) for k, v in d.items()}  # noqa: E731
@@ -270,7 +281,7 @@ class Sequence:
         self._validate_contact(T, source)
         return self
 
-    def _validate_meta(self, source) -> None:
+    def _validate_meta(self, source: str | Path | None) -> None:
         for key in ("name", "sbj_id", "obj_name", "motion_intent"):
             value = getattr(self, key)
             if not isinstance(value, str) or not value:
@@ -299,7 +310,7 @@ class Sequence:
         _check_optional_range(self.hand_scale, C.HAND_SCALE_RANGE, "",
                               _where(source, "body.hand_scale"))
 
-    def _validate_contact(self, T: int, source) -> None:
+    def _validate_contact(self, T: int, source: str | Path | None) -> None:
         if not isinstance(self.contact, dict):
             raise InputError("should be a dict of arrays", _where(source, "contact"))
         if "object" not in self.contact:
@@ -317,11 +328,11 @@ class Sequence:
                 raise InputError("contact labels must be >= 0", where)
 
 
-def _is_2d(a) -> bool:
+def _is_2d(a: object) -> bool:
     return isinstance(a, np.ndarray) and a.ndim == 2
 
 
-def _check_param(a, width: int, T: int | None, where: str) -> int:
+def _check_param(a: object, width: int, T: int | None, where: str) -> int:
     """Check one (T, width) float array; return T (the first array fixes it)."""
     if not isinstance(a, np.ndarray):
         raise InputError(f"should be an array, got {type(a).__name__}", where)
@@ -359,7 +370,9 @@ def _check_units(a: np.ndarray, key: str, where: str) -> None:
             )
 
 
-def _check_optional_range(value, bounds, unit: str, where: str) -> None:
+def _check_optional_range(
+    value: object, bounds: tuple[float, float], unit: str, where: str
+) -> None:
     if value is None:
         return
     lo, hi = bounds

@@ -4,6 +4,10 @@ Rotations are imported eagerly (light, torch only); ``meshes`` and ``distance``
 load trimesh / manifold3d / libigl on first attribute access.
 """
 
+from __future__ import annotations
+
+from typing import Any
+
 from grip_bench.geometry.rotations import (
     axis_angle_to_matrix,
     axis_angle_to_quaternion,
@@ -27,7 +31,7 @@ _LAZY = {
 }
 
 
-def __getattr__(name):
+def __getattr__(name: str) -> Any:
     if name in _LAZY:
         import importlib
 

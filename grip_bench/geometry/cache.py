@@ -73,7 +73,9 @@ def cache_root() -> Path | None:
     return base / "grip-bench"
 
 
-def mesh_key(kind: str, vertices, faces, params: Mapping | None = None) -> str:
+def mesh_key(
+    kind: str, vertices: np.ndarray, faces: np.ndarray, params: Mapping | None = None
+) -> str:
     """Hex SHA-256 of (version, kind, mesh bytes, build parameters).
 
     params: plain JSON data (floats are written with ``repr`` precision by ``json``).

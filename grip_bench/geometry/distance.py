@@ -33,20 +33,20 @@ _BOX_MARGIN = 1e-3  # m; exact queries this far outside the mesh's bounding box 
 _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
 
 
-def _to_numpy(points) -> tuple[np.ndarray, tuple[int, ...], callable]:
+def _to_numpy(points: np.ndarray | torch.Tensor) -> tuple[np.ndarray, tuple[int, ...], callable]:
     """Flatten ``(..., 3)`` numpy / torch points to float64 ``(N, 3)``, plus a converter back."""
     if isinstance(points, torch.Tensor):
         dtype, device = points.dtype, points.device
         p = points.detach().cpu().numpy()
 
-        def back(x):
+        def back(x: np.ndarray) -> torch.Tensor:
             return torch.from_numpy(np.ascontiguousarray(x)).to(device=device, dtype=dtype)
 
     else:
         p = np.asarray(points)
         dtype = p.dtype if p.dtype in (np.float32, np.float64) else np.float64
 
-        def back(x):
+        def back(x: np.ndarray) -> np.ndarray:
             return np.ascontiguousarray(x, dtype=dtype)
 
     if p.shape[-1:] != (3,):
@@ -153,12 +153,16 @@ class DistanceField:
         normal[vert] = self._vertex_normals[corner]
         return normal
 
-    def exact_signed_distance(self, points):
+    def exact_signed_distance(
+        self, points: np.ndarray | torch.Tensor
+    ) -> np.ndarray | torch.Tensor:
         """Exact signed distance ``(...)`` (m, negative inside) of points ``(..., 3)``."""
         p, lead, back = _to_numpy(points)
         return back(self._exact_values(p).reshape(lead))
 
-    def closest_points(self, points):
+    def closest_points(
+        self, points: np.ndarray | torch.Tensor
+    ) -> tuple[np.ndarray | torch.Tensor, np.ndarray | torch.Tensor, np.ndarray | torch.Tensor]:
         """Closest surface points ``(..., 3)``, signed distances ``(...)`` (m), face ids ``(...)``.
 
         Shapes follow the input: ``(N, 3)`` points give ``(N, 3), (N,), (N,)``.
@@ -172,7 +176,9 @@ class DistanceField:
 
     # --- grid -----------------------------------------------------------------------
 
-    def _node_coords(self, shape, origin, spacing) -> np.ndarray:
+    def _node_coords(
+        self, shape: tuple[int, ...], origin: np.ndarray, spacing: float
+    ) -> np.ndarray:
         axes = [origin[a] + spacing * np.arange(shape[a]) for a in range(3)]
         return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
 
@@ -327,7 +333,9 @@ class DistanceField:
         features that tolerate a millimetre, at a third of ``signed_distance``'s cost."""
         return _read(self._vol, self._scale, self._shift, q)
 
-    def signed_distance(self, points, far: str = "exact", exact_cells: bool = True):
+    def signed_distance(
+        self, points: np.ndarray | torch.Tensor, far: str = "exact", exact_cells: bool = True
+    ) -> np.ndarray | torch.Tensor:
         """Signed distance ``(...)`` (m, negative inside) of points ``(..., 3)``.
 
         Grid values, with an exact fallback.
@@ -406,7 +414,7 @@ class DistanceField:
                           padding_mode="border")
         return v.reshape(points.shape[:-1])
 
-    def within_grid(self, points) -> np.ndarray:
+    def within_grid(self, points: np.ndarray) -> np.ndarray:
         """Bool ``(...)``: points ``(..., 3)`` inside the fine grid's nodes. A point outside is
         more than ``padding`` from the mesh's bounding box, hence from the mesh."""
         p = np.asarray(points, np.float64)
@@ -436,7 +444,7 @@ class DistanceField:
                 total += x
         return np.sqrt(total, out=total)
 
-    def gradient(self, points):
+    def gradient(self, points: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
         """Unit SDF gradient ``(..., 3)`` (outward surface normal direction) at points ``(..., 3)``.
 
         Grid points interpolate node gradients; fallback points use ``(p - closest) / d``.

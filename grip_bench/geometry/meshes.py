@@ -102,7 +102,7 @@ def _unit_hint(extent: float) -> str:
     return f"looks like {unit}; pass scale={fits[unit]:g}"
 
 
-def _check_extent(mesh: trimesh.Trimesh, where) -> None:
+def _check_extent(mesh: trimesh.Trimesh, where: str | os.PathLike | None) -> None:
     extent = float(np.ptp(mesh.vertices, axis=0).max())
     if extent > constants.MAX_OBJECT_EXTENT:
         raise InputError(
@@ -118,14 +118,14 @@ def _check_extent(mesh: trimesh.Trimesh, where) -> None:
         )
 
 
-def _check_not_flat(mesh: trimesh.Trimesh, where) -> None:
+def _check_not_flat(mesh: trimesh.Trimesh, where: str | os.PathLike | None) -> None:
     centred = mesh.vertices - mesh.vertices.mean(0)
     sv = np.linalg.svd(centred, compute_uv=False)
     if sv[-1] <= constants.FLAT_TOL * sv[0]:
         raise InputError("mesh is flat (all vertices in one plane): zero volume", where=where)
 
 
-def _check_edge_manifold(mesh: trimesh.Trimesh, where) -> None:
+def _check_edge_manifold(mesh: trimesh.Trimesh, where: str | os.PathLike | None) -> None:
     edges = np.sort(mesh.edges, axis=1)
     _, counts = np.unique(edges, axis=0, return_counts=True)
     n_bad = int((counts > 2).sum())
@@ -165,7 +165,9 @@ def _boundary_loops(faces: np.ndarray) -> list[list[tuple[int, int]]]:
     return loops
 
 
-def _close_small_holes(mesh: trimesh.Trimesh, where, repairs: list[str]) -> trimesh.Trimesh:
+def _close_small_holes(
+    mesh: trimesh.Trimesh, where: str | os.PathLike | None, repairs: list[str]
+) -> trimesh.Trimesh:
     """Fan-fill each boundary loop from its centroid; reject loops too large to guess over."""
     loops = _boundary_loops(np.asarray(mesh.faces))
     if not loops:
@@ -206,7 +208,9 @@ def _clean(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
     return mesh
 
 
-def _union_components(mesh: trimesh.Trimesh, where, repairs: list[str]) -> trimesh.Trimesh:
+def _union_components(
+    mesh: trimesh.Trimesh, where: str | os.PathLike | None, repairs: list[str]
+) -> trimesh.Trimesh:
     """Several closed shells: union them (overlaps would double-count volume and contact)."""
     parts = mesh.split(only_watertight=False)
     if len(parts) <= 1:
@@ -219,7 +223,9 @@ def _union_components(mesh: trimesh.Trimesh, where, repairs: list[str]) -> trime
     return from_manifold(union)
 
 
-def repair_mesh(mesh: trimesh.Trimesh, where=None) -> trimesh.Trimesh:
+def repair_mesh(
+    mesh: trimesh.Trimesh, where: str | os.PathLike | None = None
+) -> trimesh.Trimesh:
     """Repair a raw mesh into a watertight outward-facing solid, or raise InputError.
 
     Safe repairs only: merge duplicate vertices, drop degenerate / duplicate faces,

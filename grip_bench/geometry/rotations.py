@@ -12,6 +12,8 @@ representation is the first two **columns** of the matrix, ``[R[..., :, 0], R[..
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -33,11 +35,11 @@ __all__ = [
 ]
 
 
-def _numpy_io(fn):
+def _numpy_io(fn: Callable[..., torch.Tensor]) -> Callable[..., Any]:
     """Let a torch function take a numpy array and hand numpy back."""
 
     @functools.wraps(fn)
-    def wrapper(x, *args, **kwargs):
+    def wrapper(x: torch.Tensor | np.ndarray, *args: Any, **kwargs: Any) -> Any:
         if isinstance(x, np.ndarray):
             return fn(torch.from_numpy(np.ascontiguousarray(x)), *args, **kwargs).numpy()
         return fn(x, *args, **kwargs)

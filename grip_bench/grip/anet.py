@@ -51,7 +51,7 @@ class ANetConfig:
     dropout: float = GRIP_DROPOUT
     consistency: str = "latent"  # "latent" | "output" | "none"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_mode(self.consistency)
         check_config(self, may_be_zero=("context_dim",))
         if self.n_next > self.n_future:
@@ -97,7 +97,9 @@ class ANet(nn.Module):
         self.cfg = cfg
         self.encoder, self.decoder = encoder_decoder(cfg, cfg.pose_dim)
 
-    def pack_inputs(self, current, noisy_future, context) -> torch.Tensor:
+    def pack_inputs(
+        self, current: torch.Tensor, noisy_future: torch.Tensor, context: torch.Tensor | None
+    ) -> torch.Tensor:
         """Check shapes and concatenate the encoder input ``(B, in_dim)``."""
         c = self.cfg
         check_shape(current, (None, c.n_joints, c.rot_dim), "ANet current")
@@ -127,7 +129,12 @@ class ANet(nn.Module):
         lat = self.encode(current, noisy_future, context)  # z (B, F, L)
         return ANetOutput(arms=self.decode(lat.z), z=lat.z, dz=lat.dz)
 
-    def encode(self, current, noisy_future, context=None) -> Latents:
+    def encode(
+        self,
+        current: torch.Tensor,
+        noisy_future: torch.Tensor,
+        context: torch.Tensor | None = None,
+    ) -> Latents:
         """Per-frame latents ``z (B, F, L)`` of the inputs of :meth:`forward`."""
         codes = self.encoder(self.pack_inputs(current, noisy_future, context))  # (B, F*L)
         return split_codes(codes, self.cfg.latent, self.cfg.consistency)

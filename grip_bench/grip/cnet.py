@@ -60,7 +60,7 @@ class CNetConfig:
     dropout: float = GRIP_DROPOUT
     consistency: str = "latent"  # "latent" | "output" | "none" (GRIP Tab. 2)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_mode(self.consistency)
         check_config(self, may_be_zero=("future_dim",))
 
@@ -107,7 +107,13 @@ class CNet(nn.Module):
         self.cfg = cfg
         self.encoder, self.decoder = encoder_decoder(cfg, cfg.out_dim)
 
-    def pack_inputs(self, body, ambient, proximity, future) -> torch.Tensor:
+    def pack_inputs(
+        self,
+        body: torch.Tensor,
+        ambient: torch.Tensor,
+        proximity: torch.Tensor,
+        future: torch.Tensor | None,
+    ) -> torch.Tensor:
         """Check shapes and concatenate the encoder input ``(B, in_dim)``."""
         c, f = self.cfg, self.cfg.n_frames
         check_shape(body, (None, None, c.body_dim), "CNet body")
@@ -128,7 +134,13 @@ class CNet(nn.Module):
             parts.append(future)
         return torch.cat(parts, dim=-1)
 
-    def encode(self, body, ambient, proximity, future=None) -> Latents:
+    def encode(
+        self,
+        body: torch.Tensor,
+        ambient: torch.Tensor,
+        proximity: torch.Tensor,
+        future: torch.Tensor | None = None,
+    ) -> Latents:
         """Per-frame latents ``z (B, F, L)`` of the inputs of :meth:`forward`."""
         codes = self.encoder(self.pack_inputs(body, ambient, proximity, future))  # (B, F*L)
         return split_codes(codes, self.cfg.latent, self.cfg.consistency)

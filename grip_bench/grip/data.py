@@ -22,11 +22,15 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import os
+from collections.abc import Iterable
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 
 from ..bodies.layouts import SMPLX_INDEX
 from ..core import constants as C
@@ -36,6 +40,11 @@ from ..core.io import atomic_file
 from ..core.threads import single_thread
 from ..geometry.rotations import axis_angle_to_matrix, matrix_to_rotation_6d
 from ..sensors import ambient_sensor, stage_one, wrist_frames
+
+if TYPE_CHECKING:
+    from ..bodies.hand import ProceduralHand
+    from ..data.library import ObjectLibrary
+    from ..data.sequence import Sequence
 
 FEATURE_VERSION = 1  # bump when any per-frame array changes meaning
 ARM_JOINTS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow")
@@ -59,7 +68,7 @@ class HandModel(torch.nn.Module):
         self.parents = self.hands[0].parents
         self.proximity_ids = self.hands[0].proximity_ids  # identical for both sides (mirror)
 
-    def _fk(self, hand, rot: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _fk(self, hand: ProceduralHand, rot: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Global joint rotations (N, 16, 3, 3) and positions (N, 16, 3).
 
         From local rotations ``rot`` (N, 15, 3, 3).
@@ -73,7 +82,7 @@ class HandModel(torch.nn.Module):
             g_pos.append(g_pos[p] + (g_rot[p] @ (rest[j] - rest[p])[:, None])[..., 0])
         return torch.stack(g_rot, 1), torch.stack(g_pos, 1)
 
-    def vertices(self, rot: torch.Tensor, ids=None) -> torch.Tensor:
+    def vertices(self, rot: torch.Tensor, ids: ArrayLike | None = None) -> torch.Tensor:
         out = []
         for h, hand in enumerate(self.hands):
             g_rot, g_pos = self._fk(hand, rot[:, h])
@@ -119,7 +128,7 @@ def arms_6d(body_pose: np.ndarray) -> np.ndarray:
     return aa_to_6d(np.asarray(body_pose).reshape(-1, 21, 3)[:, rows])
 
 
-def body_context(seq, wrists: dict, body_pose: np.ndarray | None = None) -> np.ndarray:
+def body_context(seq: Sequence, wrists: dict, body_pose: np.ndarray | None = None) -> np.ndarray:
     """CNet's body context ``(T, 154)`` float32 (module docstring).
 
     wrists: ``{side: (rot (T,3,3), transl (T,3))}``; body_pose (T, 63) overrides the
@@ -140,11 +149,11 @@ def body_context(seq, wrists: dict, body_pose: np.ndarray | None = None) -> np.n
     return np.concatenate(parts + [shape], axis=1).astype(np.float32)
 
 
-def all_wrists(seq) -> dict:
+def all_wrists(seq: Sequence) -> dict:
     return {side: wrist_frames(seq, side) for side in NET_SIDES}
 
 
-def gt_poses_6d(seq) -> np.ndarray:
+def gt_poses_6d(seq: Sequence) -> np.ndarray:
     """Both hands' finger poses ``(T, 2, 15, 6)`` float32 (left, right)."""
     return np.stack([aa_to_6d(seq.hand_params(s)["hand_pose"].reshape(-1, 15, 3))
                      for s in NET_SIDES], 1)
@@ -159,7 +168,9 @@ def stack_wrists(wrists: dict) -> tuple[np.ndarray, np.ndarray]:
             np.stack([wrists[s][1] for s in NET_SIDES], 1))
 
 
-def hand_proximity(library, seq, poses_6d, wrists) -> tuple[np.ndarray, np.ndarray]:
+def hand_proximity(
+    library: ObjectLibrary, seq: Sequence, poses_6d: np.ndarray, wrists: dict
+) -> tuple[np.ndarray, np.ndarray]:
     """Proximity sensor ``(T, 2, 99)`` exp(-50 d) and distances ``(T, 2, 99)`` m of given hands."""
     from ..sensors import proximity_feature
 
@@ -168,7 +179,9 @@ def hand_proximity(library, seq, poses_6d, wrists) -> tuple[np.ndarray, np.ndarr
     return np.stack([f[0] for f in feats], 1), np.stack([f[1] for f in feats], 1)
 
 
-def sequence_features(library, seq, *, voxel: bool, rng: np.random.Generator) -> dict:
+def sequence_features(
+    library: ObjectLibrary, seq: Sequence, *, voxel: bool, rng: np.random.Generator
+) -> dict:
     """Every per-frame array of one sequence (module docstring), keyed as :class:`FrameSet`."""
     from ..data.perturb import perturb_sequence
 
@@ -199,7 +212,9 @@ def sequence_features(library, seq, *, voxel: bool, rng: np.random.Generator) ->
     return out
 
 
-def voxel_feature(library, seq, wrists: dict | None = None) -> np.ndarray:
+def voxel_feature(
+    library: ObjectLibrary, seq: Sequence, wrists: dict | None = None
+) -> np.ndarray:
     """The voxel-ambient array ``(T, 2, 1014)`` float16 of :func:`sequence_features`."""
     return ambient_sensor(library, seq, wrists or all_wrists(seq), "voxel").astype(np.float16)
 
@@ -299,7 +314,8 @@ def _load(path: Path) -> FrameSet:
     return FrameSet(**arrays)
 
 
-def build_split(data_dir, split: str, *, cache_dir=None, voxel: bool = False, seed: int = 0,
+def build_split(data_dir: str | os.PathLike, split: str, *,
+                cache_dir: str | os.PathLike | None = None, voxel: bool = False, seed: int = 0,
                 data_hash: str | None = None, progress: bool = False) -> FrameSet:
     """Per-frame arrays of every sequence of ``split`` (cached when ``cache_dir`` is given).
 
@@ -366,7 +382,7 @@ def _add_voxel(base: FrameSet, data_dir: Path, split: str, progress: bool) -> Fr
     return FrameSet(**arrays, voxel=np.concatenate(voxels))
 
 
-def _progress(items, desc: str, enabled: bool):
+def _progress(items: Iterable[Any], desc: str, enabled: bool) -> Iterable[Any]:
     if not enabled:
         return items
     from tqdm import tqdm
@@ -374,7 +390,9 @@ def _progress(items, desc: str, enabled: bool):
     return tqdm(items, desc=desc, unit="seq", leave=False)
 
 
-def recompute_proximity(fs: FrameSet, idx: np.ndarray, poses_6d: np.ndarray, library) -> np.ndarray:
+def recompute_proximity(
+    fs: FrameSet, idx: np.ndarray, poses_6d: np.ndarray, library: ObjectLibrary
+) -> np.ndarray:
     """Proximity sensor ``(N, 2, 99)`` float32 of hands ``poses_6d (N, 2, 15, 6)`` placed at the
     GT wrists of frames ``idx`` (stage two, Fig. 3-C), one object field per sequence."""
     from ..sensors import attention

@@ -77,7 +77,7 @@ def rnet_macs(cfg: RNetConfig) -> int:
 _COUNTERS = {CNetConfig: cnet_macs, ANetConfig: anet_macs, RNetConfig: rnet_macs}
 
 
-def macs_per_frame(cfg) -> int:
+def macs_per_frame(cfg: CNetConfig | ANetConfig | RNetConfig) -> int:
     """Multiply-adds of one forward call of the network described by ``cfg``."""
     try:
         return _COUNTERS[type(cfg)](cfg)
@@ -85,7 +85,7 @@ def macs_per_frame(cfg) -> int:
         raise TypeError(f"no MAC counter for {type(cfg).__name__}") from None
 
 
-def flops_per_frame(cfg) -> int:
+def flops_per_frame(cfg: CNetConfig | ANetConfig | RNetConfig) -> int:
     """FLOPs of one forward call (a multiply-add is two FLOPs)."""
     return 2 * macs_per_frame(cfg)
 

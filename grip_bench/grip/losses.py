@@ -10,11 +10,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 
 from grip_bench.grip.ltc import check_mode
 from grip_bench.nn.terms import proximity_l1
+
+if TYPE_CHECKING:
+    from grip_bench.grip.anet import ANetOutput
+    from grip_bench.grip.cnet import CNetOutput
 
 HandFn = Callable[[torch.Tensor], torch.Tensor]  # poses (..., 2, J, 6) -> vertices (..., 2, V, 3)
 
@@ -28,7 +33,7 @@ class LossConfig:
     w_latent: float = 1e-3  # "latent" variant: keep dz small (a smooth latent path)
     pose_space: str = "6d"  # "6d" | "matrix"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.pose_space not in ("6d", "matrix"):
             raise ValueError(
                 f"LossConfig.pose_space must be '6d' or 'matrix', got {self.pose_space!r}"
@@ -55,7 +60,12 @@ def pose_l2(pred: torch.Tensor, gt: torch.Tensor, space: str = "6d") -> torch.Te
     return (pred - gt).pow(2).mean()
 
 
-def output_consistency(pred_t, pred_t1, gt_t=None, gt_t1=None) -> torch.Tensor:
+def output_consistency(
+    pred_t: torch.Tensor,
+    pred_t1: torch.Tensor,
+    gt_t: torch.Tensor | None = None,
+    gt_t1: torch.Tensor | None = None,
+) -> torch.Tensor:
     """Output-space consistency: L1 between predicted and GT frame-to-frame changes.
 
     Without GT it penalises the raw change ``pred_t1 - pred_t`` (a smoothness prior).
@@ -71,7 +81,13 @@ def latent_residual(dz: torch.Tensor) -> torch.Tensor:
     return dz.pow(2).sum(-1).mean()
 
 
-def cnet_loss(out, target: dict, cfg: LossConfig, consistency: str, hand_fn: HandFn | None = None):
+def cnet_loss(
+    out: CNetOutput,
+    target: dict,
+    cfg: LossConfig,
+    consistency: str,
+    hand_fn: HandFn | None = None,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """CNet loss over the frames it produced; returns ``(total, {term: value})``.
 
     ``out`` is a ``CNetOutput``; ``target`` holds ``poses_t``/``poses_t1`` (B, 2, J, 6) and
@@ -91,7 +107,9 @@ def cnet_loss(out, target: dict, cfg: LossConfig, consistency: str, hand_fn: Han
     return _total(terms, weights), terms
 
 
-def anet_loss(out, target_arms: torch.Tensor, cfg: LossConfig, consistency: str):
+def anet_loss(
+    out: ANetOutput, target_arms: torch.Tensor, cfg: LossConfig, consistency: str
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """ANet loss; ``out`` an ``ANetOutput``, ``target_arms (B, F, J, 6)`` for its frames."""
     terms = {"pose": pose_l2(out.arms, target_arms, cfg.pose_space)}
     terms.update(_consistency_terms(consistency, out.dz, out.arms, target_arms))
@@ -101,7 +119,12 @@ def anet_loss(out, target_arms: torch.Tensor, cfg: LossConfig, consistency: str)
     return _total(terms, weights), terms
 
 
-def rnet_loss(refined, gt_poses, cfg: LossConfig, hand_fn: HandFn | None = None):
+def rnet_loss(
+    refined: torch.Tensor,
+    gt_poses: torch.Tensor,
+    cfg: LossConfig,
+    hand_fn: HandFn | None = None,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """RNet loss on refined poses ``(..., 2, J, 6)``: pose L2 (+ vertex L1 with ``hand_fn``).
 
     A proximity term on the refined hands needs the object's distance field; callers that
@@ -114,7 +137,9 @@ def rnet_loss(refined, gt_poses, cfg: LossConfig, hand_fn: HandFn | None = None)
     return _total(terms, weights), terms
 
 
-def _consistency_terms(consistency, dz, pred, gt) -> dict:
+def _consistency_terms(
+    consistency: str, dz: torch.Tensor | None, pred: torch.Tensor, gt: torch.Tensor
+) -> dict:
     """The variant's consistency term; pred, gt (B, F, ...) with frames on dim 1."""
     if check_mode(consistency) == "latent" and dz is not None:
         return {"latent": latent_residual(dz)}

@@ -13,8 +13,14 @@ is the only thing the consistency variant changes (GRIP Tab. 2 ablation):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
+
+if TYPE_CHECKING:
+    from ..nn.blocks import ResMLP
+    from .anet import ANetConfig
+    from .cnet import CNetConfig
 
 CONSISTENCY_MODES = ("latent", "output", "none")
 
@@ -59,7 +65,7 @@ def decode_frames(decoder: torch.nn.Module, z: torch.Tensor) -> torch.Tensor:
     return decoder(z)
 
 
-def encoder_decoder(cfg, out_dim: int):
+def encoder_decoder(cfg: ANetConfig | CNetConfig, out_dim: int) -> tuple[ResMLP, ResMLP]:
     """The LTC pair: an encoder to ``cfg.n_frames`` latents and ONE decoder shared by all frames.
 
     ``cfg`` provides in_dim, latent, n_frames, width, hidden, dropout, n_enc_blocks and

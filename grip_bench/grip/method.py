@@ -15,11 +15,15 @@ ANet + RNet instead of generating hands; the runner sets it for perturbed sets) 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.errors import InputError
 from ..methods.api import MethodSpec, PredictContext, TrainContext, register_method
 from .pipeline import GripPipeline, Options, check_future
 from .train import Variant, load_grip, train_grip
+
+if TYPE_CHECKING:
+    from ..data.sequence import Sequence
 
 
 class GripMethod:
@@ -43,7 +47,7 @@ class GripMethod:
                           device=ctx.device, progress=ctx.progress,
                           feature_cache=ctx.feature_cache)
 
-    def load(self, checkpoint, device: str = "cpu") -> None:
+    def load(self, checkpoint: Path | None, device: str = "cpu") -> None:
         if checkpoint is None:
             raise InputError(
                 f"method {self.name!r} needs a checkpoint (grip-bench train {self.name})",
@@ -61,7 +65,7 @@ class GripMethod:
         return Options(variant=self.variant, use_anet=ctx.use_anet, use_rnet=self.use_rnet,
                        online=bool(ctx.online), refine=ctx.refine, precision=ctx.precision)
 
-    def predict(self, seq, ctx: PredictContext):
+    def predict(self, seq: Sequence, ctx: PredictContext) -> Sequence:
         if self.nets is None:
             raise InputError(
                 f"method {self.name!r} is not loaded (call load(checkpoint) first)", self.name

@@ -31,9 +31,11 @@ distance decides nothing: a perturbed hand is as likely to float as to penetrate
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 
 from ..bodies.layouts import SMPLX_INDEX
 from ..core import constants as C
@@ -53,6 +55,12 @@ from .data import (
 from .frozen import frozen
 from .train import Variant, sensor_inputs
 
+if TYPE_CHECKING:
+    from ..bodies.body import ProceduralBody
+    from ..data.library import ObjectLibrary
+    from ..data.sequence import Sequence
+    from .anet import ANet
+
 BATCH = 1024  # frames per network call
 
 
@@ -69,12 +77,12 @@ class Options:
     precision: str = "fp32"  # network arithmetic: "fp32" or "bf16" (grip_bench.grip.frozen)
 
 
-def _t(a) -> torch.Tensor:
+def _t(a: ArrayLike) -> torch.Tensor:
     return torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)
 
 
 # --- ANet ---------------------------------------------------------------------------------
-def denoise_arms(anet, noisy: np.ndarray, online: bool = False) -> np.ndarray:
+def denoise_arms(anet: ANet, noisy: np.ndarray, online: bool = False) -> np.ndarray:
     """Autoregressive arm denoising ``(T, 4, 6) -> (T, 4, 6)`` (ANet predicts corrections).
 
     Step t feeds the denoised frame t and noisy frames t+1..t+5 (clamped at the end, or at
@@ -83,7 +91,7 @@ def denoise_arms(anet, noisy: np.ndarray, online: bool = False) -> np.ndarray:
     return denoise_arms_many(anet, [noisy], online)[0]
 
 
-def denoise_arms_many(anet, noisy: list[np.ndarray], online: bool = False,
+def denoise_arms_many(anet: ANet, noisy: list[np.ndarray], online: bool = False,
                       chunk: int = C.ANET_CHUNK) -> list[np.ndarray]:
     """:func:`denoise_arms` of several sequences ``[(T_i, 4, 6)]``.
 
@@ -114,7 +122,9 @@ def denoise_arms_many(anet, noisy: list[np.ndarray], online: bool = False,
 
 
 @torch.no_grad()
-def _recursion(anet, noisy: list[np.ndarray], online: bool, stops=None) -> list[np.ndarray]:
+def _recursion(
+    anet: ANet, noisy: list[np.ndarray], online: bool, stops: ArrayLike | None = None
+) -> list[np.ndarray]:
     """The autoregressive recursion of :func:`denoise_arms` over several sequences: step t of
     every sequence still running is one batched ANet call. ``stops``: frames to denoise per
     sequence (default all); the later ones only feed the future windows."""
@@ -136,7 +146,9 @@ def _recursion(anet, noisy: list[np.ndarray], online: bool, stops=None) -> list[
     return out
 
 
-def _body_fk(seq, body_pose: np.ndarray):
+def _body_fk(
+    seq: Sequence, body_pose: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, ProceduralBody]:
     """Procedural-body FK ``(rot (T,55,3,3), joints (T,55,3))`` of ``seq``.
 
     With ``body_pose (T, 63)``.
@@ -159,7 +171,7 @@ def set_arms(body_pose: np.ndarray, arms: np.ndarray) -> np.ndarray:
     return bp.reshape(-1, 63)
 
 
-def moved_wrists(seq, old_pose: np.ndarray, new_pose: np.ndarray, wrists: dict) -> dict:
+def moved_wrists(seq: Sequence, old_pose: np.ndarray, new_pose: np.ndarray, wrists: dict) -> dict:
     """Apply each FK wrist's rigid change (``old_pose`` -> ``new_pose``) to ``wrists``."""
     r0, p0, _ = _body_fk(seq, old_pose)
     r1, p1, _ = _body_fk(seq, new_pose)
@@ -172,7 +184,7 @@ def moved_wrists(seq, old_pose: np.ndarray, new_pose: np.ndarray, wrists: dict) 
     return out
 
 
-def arms_to_wrists(seq, wrists: dict) -> np.ndarray:
+def arms_to_wrists(seq: Sequence, wrists: dict) -> np.ndarray:
     """Body pose ``(T, 63)`` whose arms reach ``wrists`` (two-bone IK, each frame's swivel kept)."""
     bp = np.asarray(seq.body["body_pose"], np.float64)
     _, _, body = _body_fk(seq, bp)
@@ -196,11 +208,11 @@ class GripPipeline:
         self.nets = {k: frozen(n, options.precision) for k, n in nets.items()}
         self.opt = options
 
-    def arms_and_wrists(self, seq) -> tuple[np.ndarray, dict]:
+    def arms_and_wrists(self, seq: Sequence) -> tuple[np.ndarray, dict]:
         """(body_pose (T, 63), wrists {side: (rot, transl)}) after ANet (or as given)."""
         return self.arms_and_wrists_many([seq])[0]
 
-    def arms_and_wrists_many(self, seqs) -> list[tuple[np.ndarray, dict]]:
+    def arms_and_wrists_many(self, seqs: list[Sequence]) -> list[tuple[np.ndarray, dict]]:
         """:meth:`arms_and_wrists` of several sequences, ANet batched across them."""
         wrists = [{s: wrist_frames(seq, s) for s in NET_SIDES} for seq in seqs]
         poses = [np.asarray(seq.body["body_pose"], np.float64) for seq in seqs]
@@ -215,11 +227,18 @@ class GripPipeline:
             for seq, p, n, w in zip(seqs, poses, new, wrists, strict=True)
         ]
 
-    def cnet_poses(self, seq, library, body_pose, wrists) -> np.ndarray:
+    def cnet_poses(
+        self, seq: Sequence, library: ObjectLibrary, body_pose: np.ndarray, wrists: dict
+    ) -> np.ndarray:
         """Stage one + CNet: both hands' poses ``(T, 2, 15, 6)``."""
         return self.cnet_poses_many([seq], library, [(body_pose, wrists)])[0]
 
-    def cnet_poses_many(self, seqs, library, arms) -> list[np.ndarray]:
+    def cnet_poses_many(
+        self,
+        seqs: list[Sequence],
+        library: ObjectLibrary,
+        arms: list[tuple[np.ndarray, dict]],
+    ) -> list[np.ndarray]:
         """:meth:`cnet_poses` of several sequences (``arms``: their ``(body_pose, wrists)``),
         CNet batched across them in groups of about ``BATCH`` frames."""
         out, group, size = [], [], 0
@@ -231,7 +250,9 @@ class GripPipeline:
                 group, size = [], 0
         return out + (self._run_cnet(group) if group else [])
 
-    def _cnet_inputs(self, seq, library, body_pose, wrists) -> dict:
+    def _cnet_inputs(
+        self, seq: Sequence, library: ObjectLibrary, body_pose: np.ndarray, wrists: dict
+    ) -> dict:
         """Per-frame CNet inputs of one sequence, the encoder rows (frame pairs) and, for each
         output frame, the row and the latent (0: z_t, 1: z_t+1) it decodes."""
         v, cnet, T = self.opt.variant, self.nets["cnet"], seq.n_frames
@@ -274,12 +295,16 @@ class GripPipeline:
         poses = poses.numpy()
         return [poses[a:b] for a, b in zip(frames[:-1], frames[1:], strict=True)]
 
-    def refine(self, seq, library, poses: np.ndarray, wrists: dict) -> np.ndarray:
+    def refine(
+        self, seq: Sequence, library: ObjectLibrary, poses: np.ndarray, wrists: dict
+    ) -> np.ndarray:
         """Stage two: proximity on ``poses (T, 2, 15, 6)`` -> RNet on interaction frames."""
         return self.refine_many([seq], library, [poses], [wrists])[0]
 
     @torch.no_grad()
-    def refine_many(self, seqs, library, poses: list, wrists: list) -> list[np.ndarray]:
+    def refine_many(
+        self, seqs: list[Sequence], library: ObjectLibrary, poses: list, wrists: list
+    ) -> list[np.ndarray]:
         """:meth:`refine` of several sequences, RNet batched across their interaction frames."""
         rows = [
             self._interaction(seq, library, p, w)
@@ -301,7 +326,9 @@ class GripPipeline:
             at += len(f)
         return out
 
-    def _interaction(self, seq, library, poses, wrists) -> tuple[np.ndarray, np.ndarray]:
+    def _interaction(
+        self, seq: Sequence, library: ObjectLibrary, poses: np.ndarray, wrists: dict
+    ) -> tuple[np.ndarray, np.ndarray]:
         """RNet's mask ``(T, 2)`` and the proximity ``(T, 2, 99)`` on ``poses``, computed only
         where a hand can interact: a hand with every proximity vertex outside the object's
         distance grid is farther than the grid padding, which exceeds ``interaction_distance``,
@@ -325,11 +352,11 @@ class GripPipeline:
                 mask[cand, h] = dist.min(axis=1) < self.opt.interaction_distance
         return mask, prox
 
-    def run(self, seq, library):
+    def run(self, seq: Sequence, library: ObjectLibrary) -> Sequence:
         """The input sequence with GRIP's hands (and ANet's arms and wrists when enabled)."""
         return self.run_many([seq], library)[0]
 
-    def run_many(self, seqs, library) -> list:
+    def run_many(self, seqs: list[Sequence], library: ObjectLibrary) -> list:
         """:meth:`run` over several sequences (throughput mode): ANet's recursion, CNet and
         RNet are batched across them; the sensors run per sequence. Equal to ``run`` on each
         up to float rounding (BLAS picks kernels by batch size)."""
@@ -348,7 +375,12 @@ class GripPipeline:
                 for seq, p, (bp, w) in zip(seqs, poses, arms, strict=True)]
 
 
-def with_hands(seq, poses: np.ndarray, body_pose=None, wrists=None):
+def with_hands(
+    seq: Sequence,
+    poses: np.ndarray,
+    body_pose: np.ndarray | None = None,
+    wrists: dict | None = None,
+) -> Sequence:
     """Copy of ``seq`` with finger poses ``(T, 2, 15, 6)`` (left, right).
 
     Optionally with new arms and wrists.

@@ -39,7 +39,7 @@ class RNetConfig:
     dropout: float = GRIP_DROPOUT
     zero_init_head: bool = True
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_config(self, may_be_zero=("ambient_dim",))
 
     @property
@@ -81,7 +81,9 @@ class RNet(nn.Module):
             nn.init.zeros_(self.net.head.weight)
             nn.init.zeros_(self.net.head.bias)
 
-    def pack_inputs(self, poses, proximity, ambient) -> torch.Tensor:
+    def pack_inputs(
+        self, poses: torch.Tensor, proximity: torch.Tensor, ambient: torch.Tensor | None
+    ) -> torch.Tensor:
         """Check shapes and concatenate ``(..., in_dim)``."""
         c = self.cfg
         check_shape(

@@ -28,11 +28,15 @@ import contextlib
 import copy
 import hashlib
 import json
+import os
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 
 from ..core import constants as C
 from ..core.checkpoint import load_checkpoint, save_checkpoint
@@ -46,6 +50,12 @@ from .cnet import CNetConfig, future_cue_dim
 from .data import FEATURE_VERSION, FrameSet, build_split, hand_model, recompute_proximity
 from .losses import LossConfig, anet_loss, cnet_loss, rnet_loss
 from .rnet import RNetConfig
+
+if TYPE_CHECKING:
+    from ..data.library import ObjectLibrary
+    from .anet import ANet
+    from .cnet import CNet
+    from .rnet import RNet
 
 STAGES = ("anet", "cnet", "rnet")
 CONFIG_CLASSES = {"anet": ANetConfig, "cnet": CNetConfig, "rnet": RNetConfig}
@@ -96,11 +106,13 @@ def build_configs(hp: dict, variant: Variant) -> dict:
 
 
 # --- batches ---------------------------------------------------------------------------
-def _t(a) -> torch.Tensor:
+def _t(a: ArrayLike) -> torch.Tensor:
     return torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)
 
 
-def sensor_inputs(ambient: np.ndarray, proximity: np.ndarray, variant: Variant):
+def sensor_inputs(
+    ambient: np.ndarray, proximity: np.ndarray, variant: Variant
+) -> tuple[np.ndarray, np.ndarray]:
     """Apply the variant's ablation to stage-one sensors ``(..., 2, A)``, ``(..., 2, 99)``."""
     if variant.ambient == "none":
         ambient = np.zeros((*ambient.shape[:-1], 1), np.float32)
@@ -164,7 +176,9 @@ class HandObjectDistance:
     ``proximity_ids`` index the proximity vertices among the K.
     """
 
-    def __init__(self, library, objects, n_vertices: int = 256):
+    def __init__(
+        self, library: ObjectLibrary, objects: Iterable[str], n_vertices: int = 256
+    ):
         self.model = hand_model(1.0)  # vertices scale linearly with the hand scale
         V = self.model.hands[0].num_vertices
         prox = np.array(self.model.proximity_ids)
@@ -184,7 +198,7 @@ class HandObjectDistance:
 # --- RNet data ------------------------------------------------------------------------------
 @torch.no_grad()
 def cnet_predict(
-    cnet, fs: FrameSet, idx: np.ndarray, variant: Variant, batch: int = 1024
+    cnet: CNet, fs: FrameSet, idx: np.ndarray, variant: Variant, batch: int = 1024
 ) -> np.ndarray:
     """CNet's poses at frames ``idx`` ``(N, 2, 15, 6)`` (eval mode)."""
     cnet.eval()
@@ -211,7 +225,13 @@ def perturb_poses(poses_6d: np.ndarray, sigma: float, rng: np.random.Generator) 
 
 
 def rnet_data(
-    cnet, fs: FrameSet, library, variant: Variant, hp: dict, rng, objects: list[str]
+    cnet: CNet,
+    fs: FrameSet,
+    library: ObjectLibrary,
+    variant: Variant,
+    hp: dict,
+    rng: np.random.Generator,
+    objects: list[str],
 ) -> dict:
     """RNet samples on interaction frames: CNet outputs plus perturbed GT hands (GRIP Sup. 6).
 
@@ -272,7 +292,9 @@ def _evaluate(stage: Stage, bs: int) -> float:
     return total / max(n, 1)
 
 
-def _epoch(stage: Stage, opt, bs: int, seed: int, epoch: int, progress: bool) -> float:
+def _epoch(
+    stage: Stage, opt: torch.optim.Optimizer, bs: int, seed: int, epoch: int, progress: bool
+) -> float:
     """One pass over the train samples in a seeded order; returns the mean loss."""
     stage.model.train()
     torch.manual_seed(_seed(seed, STAGES.index(stage.name), epoch, 1))
@@ -294,7 +316,7 @@ def _epoch(stage: Stage, opt, bs: int, seed: int, epoch: int, progress: bool) ->
     return total / max(len(starts), 1)
 
 
-def _bar(items, desc: str, enabled: bool):
+def _bar(items: Iterable[Any], desc: str, enabled: bool) -> Any:
     if not enabled:
         return items
     from tqdm import tqdm
@@ -318,7 +340,13 @@ class StageState:
 
 
 def fit(
-    stage: Stage, hp: dict, st: StageState, seed: int, epochs: int, save, progress: bool
+    stage: Stage,
+    hp: dict,
+    st: StageState,
+    seed: int,
+    epochs: int,
+    save: Callable[[StageState], None],
+    progress: bool,
 ) -> StageState:
     """Train ``stage.model`` from state ``st``; returns the final state.
 
@@ -355,38 +383,38 @@ def fit(
 
 
 # --- stages --------------------------------------------------------------------------------
-def _subset(n: int, cap: int, rng) -> np.ndarray:
+def _subset(n: int, cap: int, rng: np.random.Generator) -> np.ndarray:
     idx = np.arange(n)
     return np.sort(rng.choice(idx, cap, replace=False)) if cap and n > cap else idx
 
 
-def _anet_stage(model, data: dict, hp) -> Stage:
+def _anet_stage(model: ANet, data: dict, hp: dict) -> Stage:
     cfg, lc = model.cfg, LossConfig()
     idx = {
         s: _subset(len(data[s]), hp[f"max_{s}_frames"], np.random.default_rng(hp["seed"]))
         for s in ("train", "val")
     }
 
-    def batch(split, i):
+    def batch(split: str, i: np.ndarray) -> dict:
         return anet_batch(data[split], idx[split][i], cfg)
 
-    def loss(m, b):
+    def loss(m: ANet, b: dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         return anet_loss(m(b["current"], b["noisy_future"]), b["target"], lc, cfg.consistency)
 
     return Stage("anet", model, len(idx["train"]), len(idx["val"]), batch, loss)
 
 
-def _cnet_stage(model, data: dict, hp, variant: Variant) -> Stage:
+def _cnet_stage(model: CNet, data: dict, hp: dict, variant: Variant) -> Stage:
     lc, vert = LossConfig(), VertexFn(hp["loss_vertices"])
     rng = np.random.default_rng(hp["seed"] + 1)
     idx = {
         s: _subset_of(data[s].pair_index(), hp[f"max_{s}_frames"], rng) for s in ("train", "val")
     }
 
-    def batch(split, i):
+    def batch(split: str, i: np.ndarray) -> dict:
         return cnet_batch(data[split], idx[split][i], variant)
 
-    def loss(m, b):
+    def loss(m: CNet, b: dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         out = m(
             b["body"], b["ambient"], b["proximity"], b["future"] if variant.future_frames else None
         )
@@ -395,19 +423,21 @@ def _cnet_stage(model, data: dict, hp, variant: Variant) -> Stage:
     return Stage("cnet", model, len(idx["train"]), len(idx["val"]), batch, loss)
 
 
-def _subset_of(idx: np.ndarray, cap: int, rng) -> np.ndarray:
+def _subset_of(idx: np.ndarray, cap: int, rng: np.random.Generator) -> np.ndarray:
     return idx[_subset(len(idx), cap, rng)]
 
 
-def _rnet_stage(model, rdata: dict, hp, dist: HandObjectDistance | None = None) -> Stage:
+def _rnet_stage(
+    model: RNet, rdata: dict, hp: dict, dist: HandObjectDistance | None = None
+) -> Stage:
     lc, vert = LossConfig(), VertexFn(hp["loss_vertices"])
     w_pen = float(hp["w_penetration"])
 
-    def batch(split, i):
+    def batch(split: str, i: np.ndarray) -> dict:
         d = rdata[split]
         return {k: torch.as_tensor(d[k][i]) if k in ("mask", "object") else _t(d[k][i]) for k in d}
 
-    def loss(m, b):
+    def loss(m: RNet, b: dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         refined = m(b["poses"], b["proximity"], mask=b["mask"])
         total, terms = rnet_loss(refined, b["target"], lc, vert)
         if dist is None:
@@ -429,7 +459,7 @@ def _rnet_stage(model, rdata: dict, hp, dist: HandObjectDistance | None = None) 
 
 # --- orchestration ------------------------------------------------------------------------------
 @contextlib.contextmanager
-def deterministic(threads: int | None = None):
+def deterministic(threads: int | None = None) -> Iterator[None]:
     """Deterministic torch algorithms for the block (restored afterwards)."""
     before = torch.are_deterministic_algorithms_enabled()
     torch.use_deterministic_algorithms(True, warn_only=True)
@@ -460,8 +490,8 @@ def _load_partial(path: Path, fp: dict) -> tuple[dict, dict]:
 
 
 def train_grip(
-    data_dir,
-    out,
+    data_dir: str | os.PathLike,
+    out: str | os.PathLike,
     *,
     profile: dict,
     variant: Variant = Variant(),
@@ -521,7 +551,7 @@ def train_grip(
             stage = _make_stage(name, nets, data, hp, variant, ObjectLibrary(data_dir))
             epochs = hp[f"epochs_{name}"]
 
-            def save(s, name=name):
+            def save(s: StageState, name: str = name) -> None:
                 states[name] = s
                 _save_partial(partial, nets, configs, states, fp)
 
@@ -543,21 +573,21 @@ def train_grip(
 # ANet sees only the arms: its config, data, seeds and batches do not depend on the variant,
 # so every variant trained on the same data with the same profile gets the same weights.
 # The first one to train it leaves them in the feature cache; the others load them.
-def _shared_anet_path(cache: Path, fp: dict, cfg) -> Path:
+def _shared_anet_path(cache: Path, fp: dict, cfg: ANetConfig) -> Path:
     ident = {k: v for k, v in fp.items() if k != "train_key"}
     ident["anet"] = asdict(cfg)
     key = hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
     return Path(cache) / f"anet-{key}.pt"
 
 
-def _save_shared_anet(path: Path, anet, st: StageState) -> None:
+def _save_shared_anet(path: Path, anet: ANet, st: StageState) -> None:
     curves = {"epoch": st.epoch, "best_loss": float(st.best_loss),
               "train_curve": st.train_curve, "val_curve": st.val_curve}
     with atomic_file(path) as f:
         torch.save({"state": anet.state_dict(), "curves": curves}, f)
 
 
-def _load_shared_anet(path: Path, anet) -> StageState | None:
+def _load_shared_anet(path: Path, anet: ANet) -> StageState | None:
     """The finished ANet stage from ``path`` loaded into ``anet``, or None (absent, unreadable)."""
     if not path.is_file():
         return None
@@ -591,7 +621,9 @@ def _build_nets(configs: dict, seed: int, states: dict) -> dict:
     return nets
 
 
-def _make_stage(name, nets, data, hp, variant, library) -> Stage:
+def _make_stage(
+    name: str, nets: dict, data: dict, hp: dict, variant: Variant, library: ObjectLibrary
+) -> Stage:
     if name == "anet":
         return _anet_stage(nets["anet"], data, hp)
     if name == "cnet":
@@ -613,7 +645,7 @@ def _save_partial(path: Path, nets: dict, configs: dict, states: dict, fp: dict)
                     configs=configs, meta={"fingerprint": fp, "stages": stages})
 
 
-def load_grip(path, device: str = "cpu") -> tuple[dict, dict]:
+def load_grip(path: str | os.PathLike, device: str = "cpu") -> tuple[dict, dict]:
     """Networks ``{anet, cnet, rnet}`` (eval mode) and the meta of a GRIP checkpoint."""
     ck = load_checkpoint(path, CONFIG_CLASSES)
     return {k: m.to(device) for k, m in ck.models().items()}, ck.meta

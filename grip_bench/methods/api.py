@@ -15,9 +15,12 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ..core.registry import Registry
+
+if TYPE_CHECKING:
+    from ..data.sequence import Sequence
 
 # What a method may need at prediction time (documented in ``ls methods``).
 NEEDS = {
@@ -75,7 +78,7 @@ class Method(Protocol):
         and move the method's networks to ``device``."""
         ...
 
-    def predict(self, seq, ctx: PredictContext):
+    def predict(self, seq: Sequence, ctx: PredictContext) -> Sequence:
         """The input :class:`~grip_bench.data.sequence.Sequence` with this method's hands."""
         ...
 

@@ -18,14 +18,21 @@ import math
 import os
 import time
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core import constants as C
 from ..core.errors import InputError
 from .evaluate import EvalOptions, RowLabels
+
+if TYPE_CHECKING:
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm import tqdm
 
 ALL_SPLITS = "all"
 
@@ -180,7 +187,7 @@ def run_task(task: Task) -> tuple:
     return rows, frames, dict(failures.reasons)
 
 
-def _progress(total: int, enabled: bool):
+def _progress(total: int, enabled: bool) -> tqdm:
     from tqdm import tqdm
 
     return tqdm(total=total, desc="evaluate", unit="seq", disable=not enabled, leave=False)
@@ -229,7 +236,7 @@ def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool) -> 
 _POOLS: dict = {}
 
 
-def worker_pool(workers: int, gt_dir: Path):
+def worker_pool(workers: int, gt_dir: Path) -> ProcessPoolExecutor:
     """The process pool for ``gt_dir`` (created on first use; others are shut down)."""
     import atexit
     import multiprocessing as mp
@@ -252,7 +259,9 @@ def close_pools() -> None:
 
 
 # ------------------------------------------------------------------ entry point
-def evaluate_dirs(pred_dir, gt_dir, out_dir, *, method: str = "method", metrics=None,
+def evaluate_dirs(pred_dir: str | os.PathLike, gt_dir: str | os.PathLike,
+                  out_dir: str | os.PathLike, *, method: str = "method",
+                  metrics: Iterable[str] | None = None,
                   per_frame: bool = False, workers: int = 1, progress: bool = False,
                   split: str = "test", options: EvalOptions | None = None,
                   contact_stats: bool = False) -> dict:
@@ -289,7 +298,15 @@ def evaluate_dirs(pred_dir, gt_dir, out_dir, *, method: str = "method", metrics=
     return info
 
 
-def _summary(labels, options, pred_dir, gt_dir, pred_manifest, results, ignored) -> dict:
+def _summary(
+    labels: RowLabels,
+    options: EvalOptions,
+    pred_dir: Path,
+    gt_dir: Path,
+    pred_manifest: dict,
+    results: list[tuple],
+    ignored: int,
+) -> dict:
     from ..core.version import __version__
     from ..data.grab_io import dataset_hash
 
@@ -311,7 +328,7 @@ def _summary(labels, options, pred_dir, gt_dir, pred_manifest, results, ignored)
     }
 
 
-def _write_outputs(out_dir: Path, results, per_frame: bool, info: dict) -> None:
+def _write_outputs(out_dir: Path, results: list[tuple], per_frame: bool, info: dict) -> None:
     from ..core.io import atomic_write_text
     from ..results.schema import write_results
 
@@ -328,7 +345,9 @@ CONTACT_STATS_FILE = "contact_stats.npz"
 CONTACT_STATS_FORMAT = 1
 
 
-def pool_contact_stats(per_sequence: list[dict], sides=("right", "left")) -> dict[str, np.ndarray]:
+def pool_contact_stats(
+    per_sequence: list[dict], sides: Iterable[str] = ("right", "left")
+) -> dict[str, np.ndarray]:
     """Pool ``evaluate.contact_stats`` of sequences (in the given order) into the arrays of
     ``contact_stats.npz``: per side ``<side>_counts`` (V,) int64 (contact counts summed over
     grasp frames), ``<side>_frames`` (1,) int64 (grasp frames) and ``<side>_depths`` (K,)

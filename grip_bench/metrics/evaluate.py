@@ -27,8 +27,10 @@ grasp, both predicted hands are in the scene and the test is shared by the two h
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -42,6 +44,15 @@ from .jitter import acceleration, jitter, jitter_error
 from .penetration import penetration_depth_from_sdf
 from .pose import mpjpe, mpvpe
 from .registry import METRICS, metric
+
+if TYPE_CHECKING:
+    import trimesh
+
+    from ..data.library import ObjectLibrary
+    from ..data.posing import MANOPoser, ProceduralPoser
+    from ..data.sequence import Sequence
+    from ..geometry.distance import DistanceField
+    from .physics import StabilityResult
 
 PHYSICS_METRICS = ("sim_stable", "sim_disp", "sim_disp_hold")
 
@@ -65,7 +76,7 @@ class EvalOptions:
     sides: tuple[str, ...] = SIDES
     up: tuple[float, float, float] = C.UP
 
-    def metric_ids(self, metrics=None) -> list[str]:
+    def metric_ids(self, metrics: Iterable[str] | None = None) -> list[str]:
         """Validated metric ids in registry order; ``metrics`` overrides ``self.metrics``."""
         wanted = self.metrics if metrics is None else metrics
         known = list(METRICS.names())
@@ -121,7 +132,7 @@ class Measured:
 
 
 # ------------------------------------------------------------------ per-hand geometry
-def signed_distances(field, local: np.ndarray) -> np.ndarray:
+def signed_distances(field: DistanceField, local: np.ndarray) -> np.ndarray:
     """Signed distances (T, V) m of object-frame points (T, V, 3): grid, exact near the surface."""
     sd = np.asarray(field.signed_distance(local, far="bound"), dtype=np.float64)
     near = sd < C.EVAL_EXACT_BAND
@@ -141,7 +152,13 @@ class HandTrack:
     sd: np.ndarray
 
 
-def hand_track(seq, side: str, poser, library, field) -> HandTrack:
+def hand_track(
+    seq: Sequence,
+    side: str,
+    poser: ProceduralPoser | MANOPoser,
+    library: ObjectLibrary,
+    field: DistanceField,
+) -> HandTrack:
     """Pose ``side`` of ``seq`` and measure it against the sequence's own object trajectory."""
     verts, joints = poser.pose(side, seq.hand_params(side))
     local = library.world_to_object(seq, verts)
@@ -151,7 +168,8 @@ def hand_track(seq, side: str, poser, library, field) -> HandTrack:
 class SequencePair:
     """A prediction and its ground truth, with lazily computed per-hand geometry."""
 
-    def __init__(self, pred, gt, library, options: EvalOptions, failures: FailureCounter):
+    def __init__(self, pred: Sequence, gt: Sequence, library: ObjectLibrary,
+                 options: EvalOptions, failures: FailureCounter):
         from ..data.posing import hand_poser
 
         self.pred, self.gt, self.library, self.options = pred, gt, library, options
@@ -250,7 +268,8 @@ def m_iv(pair: SequencePair, side: str) -> Measured:
     )
 
 
-def intersection_volumes(local: np.ndarray, sd: np.ndarray, faces: np.ndarray, mesh,
+def intersection_volumes(local: np.ndarray, sd: np.ndarray, faces: np.ndarray,
+                         mesh: trimesh.Trimesh,
                          failures: FailureCounter | None = None) -> np.ndarray:
     """Per-frame exact vol(hand & object) m^3 of object-frame hands (K, V, 3) with distances (K, V).
 
@@ -288,7 +307,7 @@ def physics_frames(grasp: np.ndarray, k: int) -> np.ndarray:
     return idx[np.unique(np.round(np.linspace(0, len(idx) - 1, k)).astype(int))]
 
 
-def _hand_mesh(pair: SequencePair, side: str, t: int):
+def _hand_mesh(pair: SequencePair, side: str, t: int) -> trimesh.Trimesh:
     """The predicted hand at frame ``t`` (world) with per-vertex bone ids for per-bone hulls."""
     import trimesh
 
@@ -298,7 +317,7 @@ def _hand_mesh(pair: SequencePair, side: str, t: int):
     return m
 
 
-def _bone_ids(poser, side: str, n_verts: int) -> np.ndarray:
+def _bone_ids(poser: ProceduralPoser | MANOPoser, side: str, n_verts: int) -> np.ndarray:
     """Skinning bone of each vertex (V,): the procedural hand's, or MANO's argmax weight (the
     sealing centres of MANO's wrist go to the wrist bone)."""
     hand = poser.hands[side]
@@ -309,7 +328,7 @@ def _bone_ids(poser, side: str, n_verts: int) -> np.ndarray:
     return np.concatenate([ids, np.zeros(n_verts - len(ids), ids.dtype)])
 
 
-def simulate_frame(pair: SequencePair, t: int, protocol: str):
+def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult:
     """MuJoCo stability of frame ``t`` with every predicted hand that grasps there (GT mask),
     cached per (frame, protocol) so a bimanual frame is simulated once for both hands."""
     from .physics import convex_decomposition, stability
@@ -385,7 +404,7 @@ def m_jitter_err(pair: SequencePair, side: str) -> Measured:
 
 
 # ------------------------------------------------------------------ rows
-def check_pair(pred, gt) -> None:
+def check_pair(pred: Sequence, gt: Sequence) -> None:
     """Same object and frame count, or an :class:`InputError` naming the prediction's file."""
     where = str(pred.source or pred.name)
     if pred.obj_name != gt.obj_name:
@@ -396,7 +415,9 @@ def check_pair(pred, gt) -> None:
                          f"{gt.source or gt.name} has {gt.n_frames}", where)
 
 
-def _rows(labels: RowLabels, gt, side: str, metric: str, m: Measured, per_frame: bool):
+def _rows(
+    labels: RowLabels, gt: Sequence, side: str, metric: str, m: Measured, per_frame: bool
+) -> tuple[ResultRow, list[ResultRow]]:
     spec = METRICS.get(metric)
     base = dict(method=labels.method, dataset=labels.dataset, split=labels.split,
                 perturbation=labels.perturbation, sequence=gt.name, object=gt.obj_name,
@@ -410,7 +431,8 @@ def _rows(labels: RowLabels, gt, side: str, metric: str, m: Measured, per_frame:
     return row, frames
 
 
-def evaluate_sequence(pred, gt, library, *, metrics=None, per_frame: bool = False,
+def evaluate_sequence(pred: Sequence, gt: Sequence, library: ObjectLibrary, *,
+                      metrics: Iterable[str] | None = None, per_frame: bool = False,
                       options: EvalOptions = EvalOptions(), labels: RowLabels = RowLabels(),
                       failures: FailureCounter | None = None, stats: dict | None = None
                       ) -> tuple[list[ResultRow], list[ResultRow]]:

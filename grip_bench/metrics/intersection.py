@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # trimesh costs 0.5 s to import; `grip-bench ls` should not pay it
+    import manifold3d
     import trimesh
 
 
@@ -58,7 +59,9 @@ def is_closed_manifold(faces: np.ndarray) -> bool:
     return bool(np.all(key_sorted[pos] == rev))
 
 
-def to_manifold(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray | None = None):
+def to_manifold(
+    vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray | None = None
+) -> manifold3d.Manifold | None:
     """A manifold3d ``Manifold`` of a closed mesh, or ``None`` when manifold3d rejects it.
 
     vertices: (V, 3) m; faces: (F, 3); origin: (3,) subtracted first (local coordinates).
@@ -116,7 +119,7 @@ def _disjoint(va: np.ndarray, vb: np.ndarray) -> bool:
     return bool(np.linalg.norm(ca - cb) > ra + rb)
 
 
-def _volume(man_a, man_b) -> float:
+def _volume(man_a: manifold3d.Manifold, man_b: manifold3d.Manifold) -> float:
     return float(max((man_a ^ man_b).volume(), 0.0))
 
 
@@ -206,7 +209,7 @@ class _PosedManifolds:
         self.faces, self.origin = faces, origin
         self.base, self.perm = None, None
 
-    def at(self, vertices: np.ndarray):
+    def at(self, vertices: np.ndarray) -> manifold3d.Manifold | None:
         """The Manifold of the mesh at ``vertices`` (V, 3), or None when manifold3d rejects it."""
         v = np.asarray(vertices, np.float64) - self.origin
         if self.perm is None or not np.isfinite(v).all():
@@ -216,7 +219,7 @@ class _PosedManifolds:
             return man
         return self.base.warp_batch(lambda _: v[self.perm])
 
-    def _adopt(self, man, v: np.ndarray) -> None:
+    def _adopt(self, man: manifold3d.Manifold, v: np.ndarray) -> None:
         """Keep ``man`` as the base when its vertices are exactly a permutation of ``v``."""
         from scipy.spatial import cKDTree
 

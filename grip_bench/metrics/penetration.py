@@ -12,8 +12,12 @@ import numpy as np
 if TYPE_CHECKING:  # trimesh costs 0.5 s to import; `grip-bench ls` should not pay it
     import trimesh
 
+    from ..geometry.distance import DistanceField
 
-def exact_signed_distance(mesh: trimesh.Trimesh, points: np.ndarray, field=None) -> np.ndarray:
+
+def exact_signed_distance(
+    mesh: trimesh.Trimesh, points: np.ndarray, field: DistanceField | None = None
+) -> np.ndarray:
     """Exact signed distance of points to a watertight mesh, negative inside.
 
     points: (N, 3) metres -> (N,) metres. ``field`` is an optional prebuilt
@@ -37,7 +41,9 @@ def penetration_depth_from_sdf(signed_dist: np.ndarray) -> np.ndarray:
     return np.maximum(-np.min(np.asarray(signed_dist), axis=-1), 0.0)
 
 
-def penetration_depth(a: trimesh.Trimesh, b: trimesh.Trimesh, field=None) -> float:
+def penetration_depth(
+    a: trimesh.Trimesh, b: trimesh.Trimesh, field: DistanceField | None = None
+) -> float:
     """Largest depth of a vertex of hand ``a`` inside object ``b`` in metres.
 
     0.0 when no vertex is inside: a true zero, not a failure. ``field``: optional

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 if TYPE_CHECKING:  # trimesh costs 0.5 s to import; `grip-bench ls` should not pay it
+    import mujoco
     import trimesh
 
 from ..core import constants as C
@@ -202,7 +203,7 @@ _MODEL_CACHE: OrderedDict[str, object] = OrderedDict()
 _INERTIA_CACHE: OrderedDict[str, tuple] = OrderedDict()
 
 
-def _remember(cache: OrderedDict, key: str, value) -> None:
+def _remember(cache: OrderedDict, key: str, value: object) -> None:
     cache[key] = value
     if len(cache) > _LRU_SIZE:
         cache.popitem(last=False)
@@ -231,7 +232,7 @@ def _clusters(points: np.ndarray) -> list[np.ndarray]:
 
 
 # ---------------------------------------------------------------- model
-def _contact_params(geom, margin: float = 0.0) -> None:
+def _contact_params(geom: mujoco.MjsGeom, margin: float = 0.0) -> None:
     """Contact settings shared by hand and object geoms (the why lives in constants)."""
     geom.friction = [C.SIM_FRICTION, C.SIM_TORSIONAL_FRICTION, C.SIM_ROLLING_FRICTION]
     geom.condim = C.SIM_CONDIM
@@ -242,7 +243,13 @@ def _contact_params(geom, margin: float = 0.0) -> None:
     geom.gap = 0.0
 
 
-def _add_pieces(spec, body, pieces: list[np.ndarray], prefix: str, margin: float = 0.0) -> None:
+def _add_pieces(
+    spec: mujoco.MjSpec,
+    body: mujoco.MjsBody,
+    pieces: list[np.ndarray],
+    prefix: str,
+    margin: float = 0.0,
+) -> None:
     import mujoco
 
     for i, pts in enumerate(pieces):
@@ -288,7 +295,7 @@ def build_model(
     obj_pose: tuple[np.ndarray, np.ndarray] | None = None,
     up: tuple[float, float, float] = C.UP,
     density: float = C.DEFAULT_DENSITY,
-):
+) -> mujoco.MjModel:
     """Compile the scene: hand pieces static in the world, the object one free body.
 
     hand_pieces: world-frame vertex arrays; obj, obj_pieces: the object's own frame;
@@ -330,7 +337,7 @@ def _matrix_to_wxyz(rot: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- simulation
-def simulate(model, n_steps: int) -> tuple[float, bool]:
+def simulate(model: mujoco.MjModel, n_steps: int) -> tuple[float, bool]:
     """Step from rest; return (centre-of-mass displacement m, diverged)."""
     import mujoco
 
@@ -358,7 +365,14 @@ def protocol_steps(protocol: Literal["paper", "hold"]) -> int:
     raise InputError(f"unknown protocol '{protocol}' (known: paper, hold)", "protocol")
 
 
-def _compiled(hand_pieces, obj, obj_pieces, obj_pose, up, density):
+def _compiled(
+    hand_pieces: list[np.ndarray],
+    obj: trimesh.Trimesh,
+    obj_pieces: list[np.ndarray],
+    obj_pose: tuple[np.ndarray, np.ndarray] | None,
+    up: tuple[float, float, float],
+    density: float,
+) -> mujoco.MjModel:
     """``build_model``, reusing the model compiled for an identical scene (content key: every
     piece, the object mesh, pose, up, density and the SIM_* constants). A model is never
     changed by simulating it (``simulate`` works on its own ``MjData``)."""

@@ -51,7 +51,8 @@ METRICS: Registry[MetricSpec] = Registry("metric")
 
 
 def metric(id: str, name: str, unit: str, scale: float, higher_is_better: bool,
-           frame_mask: Literal["all", "grasp"], version: int, description: str):
+           frame_mask: Literal["all", "grasp"], version: int, description: str
+           ) -> Callable[[Callable[[Any, str], Any]], Callable[[Any, str], Any]]:
     """Decorator registering the per-hand compute function of metric ``id`` (in definition
     order, which is the order of tables and leaderboards)."""
 

@@ -8,6 +8,8 @@ module here accepts ``(..., C)`` and flattens the leading dimensions (batch x ti
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
+from typing import Any
 
 import torch
 from torch import nn
@@ -16,7 +18,7 @@ from grip_bench.core.constants import GRIP_DROPOUT, GRIP_LEAKY_SLOPE
 from grip_bench.core.errors import InputError
 
 
-def flat_apply(fn, x: torch.Tensor) -> torch.Tensor:
+def flat_apply(fn: Callable[[torch.Tensor], torch.Tensor], x: torch.Tensor) -> torch.Tensor:
     """Apply ``fn`` on ``(N, C)`` to ``x (..., C)``; returns ``(..., C_out)``."""
     lead = x.shape[:-1]
     y = fn(x.reshape(-1, x.shape[-1]))  # (N, C_out)
@@ -33,7 +35,7 @@ def check_shape(x: torch.Tensor, shape: tuple, name: str) -> None:
         raise InputError(f"expected shape {want}, got {tuple(x.shape)}", where=name)
 
 
-def check_config(cfg, may_be_zero: tuple[str, ...] = ()) -> None:
+def check_config(cfg: Any, may_be_zero: tuple[str, ...] = ()) -> None:
     """Validate a network config: int fields >= 1 (or >= 0 if named), dropout in [0, 1)."""
     for f in dataclasses.fields(cfg):
         value = getattr(cfg, f.name)

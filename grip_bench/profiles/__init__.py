@@ -36,7 +36,7 @@ def _read(path: Path) -> dict:
         raise InputError(f"not a readable TOML profile ({e})", path) from None
 
 
-def _type_ok(value, ref) -> bool:
+def _type_ok(value: object, ref: object) -> bool:
     if isinstance(ref, bool) or isinstance(value, bool):
         return type(value) is type(ref)
     if isinstance(ref, float):

@@ -20,6 +20,7 @@ import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -27,12 +28,18 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import PolyCollection
 from matplotlib.colors import LinearSegmentedColormap, Normalize
 from matplotlib.figure import Figure
+from numpy.typing import ArrayLike
 
 from ..core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED
 from ..core.errors import InputError
 from ..core.frames import SIDES
 from ..core.io import atomic_write_bytes
 from ..results.stats import bootstrap_ci, per_sequence
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.colors import Colormap
+    from matplotlib.lines import Line2D
 
 VIEWS = ("palm", "back")
 GT_NAMES = ("gt", "ground truth", "ground_truth", "grab")  # drawn first, labelled "ground truth"
@@ -95,7 +102,9 @@ class HandView:
     shade: np.ndarray
 
 
-def project_view(vertices: np.ndarray, faces: np.ndarray, forward, up) -> HandView:
+def project_view(
+    vertices: np.ndarray, faces: np.ndarray, forward: ArrayLike, up: ArrayLike
+) -> HandView:
     """Orthographic view of an outward-wound mesh, camera looking along ``forward``.
 
     vertices (V, 3) m; faces (F, 3); forward, up (3,) (orthogonal) -> :class:`HandView`.
@@ -124,7 +133,9 @@ def _template(side: str) -> tuple[np.ndarray, np.ndarray]:
     return hand.template_vertices.detach().double().numpy(), np.asarray(hand.faces)
 
 
-def hand_template_views(side: str, template=None) -> dict[str, HandView]:
+def hand_template_views(
+    side: str, template: tuple[np.ndarray, np.ndarray] | None = None
+) -> dict[str, HandView]:
     """Palm and back views of a hand template with the fingers pointing up.
 
     ``template``: optional ``(vertices (V, 3), faces (F, 3))`` in the procedural / SMPL-X
@@ -263,7 +274,7 @@ class _Layout:
         w = self.left + 4 * self.panel_w + 2 * self.gap + self.group_gap + self.cbar
         return w, self.title + self.top + rows * (self.panel_h + self.gap) + self.bottom
 
-    def panel(self, row: int, col: int, fig_size) -> list[float]:
+    def panel(self, row: int, col: int, fig_size: tuple[float, float]) -> list[float]:
         """Axes rectangle (figure fractions) of panel (row, col)."""
         w, h = fig_size
         x = self.left + col * (self.panel_w + self.gap) + (self.group_gap - self.gap) * (col >= 2)
@@ -271,7 +282,9 @@ class _Layout:
         return [x / w, y / h, self.panel_w / w, self.panel_h / h]
 
 
-def _view_limits(views: Mapping[str, Mapping[str, HandView]], margin: float = 0.03):
+def _view_limits(
+    views: Mapping[str, Mapping[str, HandView]], margin: float = 0.03
+) -> tuple[np.ndarray, dict[tuple[str, str], np.ndarray]]:
     """One (half-width, half-height, centres) for all panels: every hand is drawn at one scale."""
     boxes = {(s, k): (v.xy[np.unique(v.faces)].min(0), v.xy[np.unique(v.faces)].max(0))
              for s, per in views.items() for k, v in per.items()}
@@ -280,7 +293,9 @@ def _view_limits(views: Mapping[str, Mapping[str, HandView]], margin: float = 0.
     return half, centres
 
 
-def _face_colours(view: HandView, values: np.ndarray | None, cmap, norm) -> np.ndarray:
+def _face_colours(
+    view: HandView, values: np.ndarray | None, cmap: Colormap, norm: Normalize
+) -> np.ndarray:
     """Shaded RGB per visible face; ``values (V,)`` fractions or None (no data for the side)."""
     if values is None:
         rgb = np.broadcast_to(np.asarray(NO_DATA), (len(view.faces), 3)).copy()
@@ -297,7 +312,9 @@ def _face_colours(view: HandView, values: np.ndarray | None, cmap, norm) -> np.n
     return rgb * shade[:, None]
 
 
-def _draw_hand(ax, view: HandView, rgb: np.ndarray, half, centre) -> None:
+def _draw_hand(
+    ax: Axes, view: HandView, rgb: np.ndarray, half: np.ndarray, centre: np.ndarray
+) -> None:
     """Painter's-order flat-shaded triangles with a dark outline around the silhouette."""
     tris = view.xy[view.faces]
     # the outline is the same triangles, drawn first with thick dark edges: only the edges
@@ -311,7 +328,9 @@ def _draw_hand(ax, view: HandView, rgb: np.ndarray, half, centre) -> None:
     ax.set_axis_off()
 
 
-def _headers(fig, lay: _Layout, size, title: str | None) -> None:
+def _headers(
+    fig: Figure, lay: _Layout, size: tuple[float, float], title: str | None
+) -> None:
     w, h = size
     for g, side in enumerate(SIDES):
         x0 = lay.panel(0, 2 * g, size)[0]
@@ -328,13 +347,20 @@ def _headers(fig, lay: _Layout, size, title: str | None) -> None:
         fig.text(0.5, (h - 0.22) / h, title, ha="center", va="center", fontsize=_FONT + 3)
 
 
-def _rule(fig, x0: float, x1: float, y: float):
+def _rule(fig: Figure, x0: float, x1: float, y: float) -> Line2D:
     from matplotlib.lines import Line2D
 
     return Line2D([x0, x1], [y, y], transform=fig.transFigure, color="0.4", linewidth=0.8)
 
 
-def _colorbar(fig, lay: _Layout, size, rows: int, cmap, norm) -> None:
+def _colorbar(
+    fig: Figure,
+    lay: _Layout,
+    size: tuple[float, float],
+    rows: int,
+    cmap: Colormap,
+    norm: Normalize,
+) -> None:
     from matplotlib.cm import ScalarMappable
 
     w, h = size
@@ -353,7 +379,8 @@ def _colorbar(fig, lay: _Layout, size, rows: int, cmap, norm) -> None:
 
 
 def contact_heatmap(freqs: Mapping[str, Mapping[str, np.ndarray]], out_png: str | os.PathLike, *,
-                    title: str | None = None, unit: str = "fraction", templates=None,
+                    title: str | None = None, unit: str = "fraction",
+                    templates: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
                     panel_width: float = 1.35) -> Path:
     """Contact heatmaps in the style of GRIP Fig. S.15: one row per method, ground truth first.
 
@@ -450,7 +477,7 @@ def penetration_cdf(depths: Mapping[str, np.ndarray], out_png: str | os.PathLike
     return _save(fig, out_png)
 
 
-def _cdf_axes(ax, log_x: bool, floor: float) -> None:
+def _cdf_axes(ax: Axes, log_x: bool, floor: float) -> None:
     if log_x:
         ax.set_xscale("log")
         ax.set_xlim(left=floor)
@@ -560,7 +587,7 @@ def _bar_figure(n_objects: int, n_methods: int, legend_rows: int) -> Figure:
     return fig
 
 
-def _bars(ax, stats: np.ndarray, methods: Sequence[str], objects: Sequence[str]) -> None:
+def _bars(ax: Axes, stats: np.ndarray, methods: Sequence[str], objects: Sequence[str]) -> None:
     width = 0.8 / len(methods)
     x = np.arange(len(objects))
     for i, m in enumerate(methods):
@@ -578,7 +605,9 @@ def _bars(ax, stats: np.ndarray, methods: Sequence[str], objects: Sequence[str])
     ax.set_axisbelow(True)
 
 
-def _bar_labels(fig, ax, name: str, unit: str, hib: bool | None, hand: str | None, n: int) -> None:
+def _bar_labels(
+    fig: Figure, ax: Axes, name: str, unit: str, hib: bool | None, hand: str | None, n: int
+) -> None:
     from .render import display_unit
 
     direction = {True: ", higher is better", False: ", lower is better", None: ""}[hib]

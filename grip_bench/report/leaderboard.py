@@ -15,6 +15,7 @@ import io
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -24,6 +25,10 @@ from ..core.errors import InputError
 from ..core.io import atomic_write_text
 from ..results.schema import format_float
 from ..results.stats import CI, sequence_ci
+
+if TYPE_CHECKING:
+    from ..core.registry import Registry
+    from ..metrics.registry import MetricSpec
 from .tables import (
     HAND_LABELS,
     Cell,
@@ -39,7 +44,7 @@ LEADERBOARD_COLUMNS = ("method", "metric", "hand", "value", "ci_low", "ci_high",
 _HAND_ORDER = {"right": 0, "left": 1, "both": 2}
 
 
-def _unit(rows: pd.DataFrame, metric: str, registry) -> str:
+def _unit(rows: pd.DataFrame, metric: str, registry: Registry[MetricSpec] | None) -> str:
     """The one report unit of a metric; a mismatch with the registry is a unit bug."""
     units = sorted(set(rows["unit"]))
     if len(units) != 1:
@@ -51,7 +56,7 @@ def _unit(rows: pd.DataFrame, metric: str, registry) -> str:
     return units[0]
 
 
-def _direction(metric: str, registry) -> bool | None:
+def _direction(metric: str, registry: Registry[MetricSpec] | None) -> bool | None:
     return registry.get(metric).higher_is_better if registry is not None and metric in registry \
         else None
 
@@ -70,7 +75,9 @@ def _rank_key(lb: pd.DataFrame) -> pd.Series:
     return (lb["value"] * sign).fillna(np.inf)
 
 
-def leaderboard(results_df: pd.DataFrame, metrics_registry=None, seed: int = BOOTSTRAP_SEED, *,
+def leaderboard(results_df: pd.DataFrame,
+                metrics_registry: Registry[MetricSpec] | None = None,
+                seed: int = BOOTSTRAP_SEED, *,
                 n_boot: int = BOOTSTRAP_N, perturbation: str | None = "none",
                 hands: Mapping[str, Sequence[str]] | None = None) -> pd.DataFrame:
     """Leaderboard frame: :data:`LEADERBOARD_COLUMNS` plus ``n_nan``.
@@ -121,7 +128,7 @@ def write_leaderboard_csv(lb: pd.DataFrame, path: str | os.PathLike) -> Path:
     return atomic_write_text(path, leaderboard_csv_text(lb))
 
 
-def _metric_order(lb: pd.DataFrame, registry) -> list[str]:
+def _metric_order(lb: pd.DataFrame, registry: Registry[MetricSpec] | None) -> list[str]:
     """Registry order first (docs/contract.md, "Definitions"), unknown metrics alphabetically
     after."""
     known = registry.names() if registry is not None else []
@@ -129,7 +136,9 @@ def _metric_order(lb: pd.DataFrame, registry) -> list[str]:
     return [m for m in known if m in present] + sorted(present - set(known))
 
 
-def leaderboard_table(lb: pd.DataFrame, metrics_registry=None, title: str = "Leaderboard",
+def leaderboard_table(lb: pd.DataFrame,
+                      metrics_registry: Registry[MetricSpec] | None = None,
+                      title: str = "Leaderboard",
                       reference_methods: Sequence[str] | None = None) -> TableData:
     """The leaderboard as a wide table (methods x metric/hand) for the shared renderers.
 
@@ -169,7 +178,7 @@ def leaderboard_table(lb: pd.DataFrame, metrics_registry=None, title: str = "Lea
                      rows=tuple(mark_best(rows)), notes=notes)
 
 
-def _lb_cell(r, col: Column) -> Cell:
+def _lb_cell(r: Any, col: Column) -> Cell:
     if r is None:
         return Cell(ci=None, higher_is_better=col.higher_is_better)
     ci = CI(r.value, r.ci_low, r.ci_high, int(r.n_sequences), int(r.n_nan))
@@ -177,7 +186,7 @@ def _lb_cell(r, col: Column) -> Cell:
                 filters={"method": r.method, "metric": r.metric, "hand": r.hand})
 
 
-def leaderboard_tables(lb: pd.DataFrame, metrics_registry=None,
+def leaderboard_tables(lb: pd.DataFrame, metrics_registry: Registry[MetricSpec] | None = None,
                        title: str = "Leaderboard") -> list[TableData]:
     """One leaderboard table per hand (right, left, both): each fits a page width."""
     hands = sorted(set(lb["hand"]), key=lambda h: (_HAND_ORDER.get(h, 9), h))
@@ -190,7 +199,8 @@ def leaderboard_tables(lb: pd.DataFrame, metrics_registry=None,
 _HAND_TITLES = {"right": "right hand", "left": "left hand", "both": "both hands"}
 
 
-def write_leaderboard_md(lb: pd.DataFrame, path: str | os.PathLike, metrics_registry=None,
+def write_leaderboard_md(lb: pd.DataFrame, path: str | os.PathLike,
+                         metrics_registry: Registry[MetricSpec] | None = None,
                          title: str = "Leaderboard") -> Path:
     from .render import to_markdown
 
@@ -200,7 +210,8 @@ def write_leaderboard_md(lb: pd.DataFrame, path: str | os.PathLike, metrics_regi
 
 
 def write_leaderboard_html(lb: pd.DataFrame, path: str | os.PathLike,
-                           figures: Sequence[str | os.PathLike] = (), metrics_registry=None,
+                           figures: Sequence[str | os.PathLike] = (),
+                           metrics_registry: Registry[MetricSpec] | None = None,
                            title: str = "grip-bench leaderboard",
                            extra_tables: Sequence[TableData] = ()) -> Path:
     """Self-contained sortable page: the leaderboard, optional paper tables, PNG figures."""

@@ -18,6 +18,7 @@ import io
 import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -28,6 +29,10 @@ from ..core.io import atomic_write_text
 from ..results.schema import format_float, read_results, read_runtime
 from ..results.stats import CI
 from .tables import TABLES, Cell, Column, Row, TableData, TableSpec, compute_table
+
+if TYPE_CHECKING:
+    from ..core.registry import Registry
+    from ..metrics.registry import MetricSpec
 
 FORMATS = ("md", "csv", "tex", "html")
 MISSING = "–"
@@ -472,7 +477,7 @@ def render_table(
     *,
     runtime: pd.DataFrame | None = None,
     dataset: str | None = None,
-    metrics_registry=None,
+    metrics_registry: Registry[MetricSpec] | None = None,
     n_boot: int = BOOTSTRAP_N,
     seed: int = BOOTSTRAP_SEED,
 ) -> str:
@@ -489,7 +494,8 @@ def _write_all_formats(data: TableData, out: Path, formats: Sequence[str]) -> li
 
 
 def render_all(results_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
-               formats: Sequence[str] = FORMATS, metrics_registry=None,
+               formats: Sequence[str] = FORMATS,
+               metrics_registry: Registry[MetricSpec] | None = None,
                n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED) -> list[Path]:
     """Write every registered table in every format from ``results_dir`` into ``out_dir``.
 

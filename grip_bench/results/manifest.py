@@ -12,6 +12,7 @@ import os
 import platform
 import subprocess
 import sys
+from collections.abc import Iterable
 from importlib import metadata
 from pathlib import Path
 
@@ -26,7 +27,7 @@ PACKAGES = ("grip-bench", "numpy", "torch", "trimesh", "manifold3d", "mujoco", "
 _GIT_TIMEOUT_S = 5  # git on a network file system can hang; a manifest must not
 
 
-def package_versions(names=PACKAGES) -> dict[str, str | None]:
+def package_versions(names: Iterable[str] = PACKAGES) -> dict[str, str | None]:
     """Installed version per distribution name, ``None`` when not installed."""
     out: dict[str, str | None] = {}
     for name in names:

@@ -85,7 +85,7 @@ def _columns_for(df: pd.DataFrame) -> tuple[str, ...]:
     return FRAME_COLUMNS if "frame" in df.columns else RESULT_COLUMNS
 
 
-def _check_columns(df: pd.DataFrame, where) -> tuple[str, ...]:
+def _check_columns(df: pd.DataFrame, where: str | os.PathLike | None) -> tuple[str, ...]:
     expected = _columns_for(df)
     missing = [c for c in expected if c not in df.columns]
     extra = [c for c in df.columns if c not in expected]
@@ -99,7 +99,7 @@ def _check_columns(df: pd.DataFrame, where) -> tuple[str, ...]:
     return expected
 
 
-def _check_strings(df: pd.DataFrame, where) -> None:
+def _check_strings(df: pd.DataFrame, where: str | os.PathLike | None) -> None:
     for col in STR_COLUMNS:
         bad = ~df[col].map(lambda v: isinstance(v, str) and v != "")
         if bad.any():
@@ -108,8 +108,10 @@ def _check_strings(df: pd.DataFrame, where) -> None:
                              f"{df[col].iloc[i]!r}", where=where)
 
 
-def _to_float(df: pd.DataFrame, where, col: str = "value") -> pd.Series:
-    def conv(v):
+def _to_float(
+    df: pd.DataFrame, where: str | os.PathLike | None, col: str = "value"
+) -> pd.Series:
+    def conv(v: object) -> float:
         if isinstance(v, bool):
             raise ValueError
         if isinstance(v, str) and not v.strip():
@@ -130,7 +132,7 @@ def _to_float(df: pd.DataFrame, where, col: str = "value") -> pd.Series:
     return pd.Series(out, index=df.index, dtype="float64")
 
 
-def _as_count(v) -> int | None:
+def _as_count(v: object) -> int | None:
     """An integer >= 0 from text, an int or an integral float; ``None`` otherwise."""
     n = None
     if isinstance(v, bool):
@@ -144,7 +146,7 @@ def _as_count(v) -> int | None:
     return n if n is not None and n >= 0 else None
 
 
-def _to_int(df: pd.DataFrame, col: str, where) -> pd.Series:
+def _to_int(df: pd.DataFrame, col: str, where: str | os.PathLike | None) -> pd.Series:
     out = []
     for i, v in enumerate(df[col]):
         n = _as_count(v)
@@ -155,7 +157,7 @@ def _to_int(df: pd.DataFrame, col: str, where) -> pd.Series:
     return pd.Series(out, index=df.index, dtype="int64")
 
 
-def validate(df: pd.DataFrame, where=None) -> pd.DataFrame:
+def validate(df: pd.DataFrame, where: str | os.PathLike | None = None) -> pd.DataFrame:
     """Check columns, types and key uniqueness; return a typed, sorted copy.
 
     Raises :class:`InputError` naming ``where`` (a path) and the first offending row.
@@ -235,7 +237,7 @@ RUNTIME_COLUMNS = ("method", "mode", "device", "batch", "seconds_per_frame",
 RUNTIME_SORT_KEYS = ("method", "mode", "device", "batch")
 
 
-def validate_runtime(df: pd.DataFrame, where=None) -> pd.DataFrame:
+def validate_runtime(df: pd.DataFrame, where: str | os.PathLike | None = None) -> pd.DataFrame:
     """Check ``runtime.csv`` columns and types; typed copy in canonical order.
 
     Several rows per (method, mode, device, batch) are allowed: repeated measurements.

@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from ..core.constants import BOOTSTRAP_ALPHA, BOOTSTRAP_CHUNK, BOOTSTRAP_N, BOOTSTRAP_SEED
 from ..core.errors import InputError
@@ -31,7 +32,9 @@ class CI(NamedTuple):
     n_nan: int
 
 
-def _check(values, strata, n_boot: int, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+def _check(
+    values: ArrayLike, strata: ArrayLike | None, n_boot: int, alpha: float
+) -> tuple[np.ndarray, np.ndarray]:
     v = np.asarray(values, dtype=np.float64).reshape(-1)
     s = np.zeros(v.shape, dtype=np.int64) if strata is None else np.asarray(strata).reshape(-1)
     if s.shape != v.shape:
@@ -58,7 +61,10 @@ def _layout(v: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def bootstrap_means(
-    values, strata=None, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED
+    values: ArrayLike,
+    strata: ArrayLike | None = None,
+    n_boot: int = BOOTSTRAP_N,
+    seed: int = BOOTSTRAP_SEED,
 ) -> np.ndarray:
     """``(n_boot,)`` stratified-bootstrap means of the finite ``values``.
 
@@ -82,8 +88,13 @@ def bootstrap_means(
     return out
 
 
-def bootstrap_ci(values, strata=None, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
-                 alpha: float = BOOTSTRAP_ALPHA) -> CI:
+def bootstrap_ci(
+    values: ArrayLike,
+    strata: ArrayLike | None = None,
+    n_boot: int = BOOTSTRAP_N,
+    seed: int = BOOTSTRAP_SEED,
+    alpha: float = BOOTSTRAP_ALPHA,
+) -> CI:
     """Mean and ``1 - alpha`` stratified-bootstrap percentile interval over sequences.
 
     ``values`` (n,) per-sequence values (NaN = failed, excluded and counted); ``strata`` (n,)

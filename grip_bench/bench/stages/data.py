@@ -11,11 +11,12 @@ from typing import TYPE_CHECKING
 from ...core.progress import bar
 
 if TYPE_CHECKING:
+    from ...data.sequence import Sequence
     from ..execute import RunState
     from ..plan import Unit
 
 # --- stage: data ----------------------------------------------------------------------------
-def _copy_sequence_meshes(seq, src: Path, dest: Path) -> None:
+def _copy_sequence_meshes(seq: Sequence, src: Path, dest: Path) -> None:
     """Copy the object mesh (and any subject / table mesh the file names) into ``dest``."""
     from ...data.grab_io import object_mesh_relpath, resolve_object_mesh
 

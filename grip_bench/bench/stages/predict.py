@@ -7,6 +7,7 @@ files the same way.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,10 +17,12 @@ from ...methods.api import METHODS, PredictContext
 from ...results.layout import CLEAN, MAIN_SPLIT
 
 if TYPE_CHECKING:
+    from ...data.sequence import Sequence
+    from ...methods.api import Method
     from ..execute import RunState
     from ..plan import Unit
 
-def loaded_method(st: RunState, name: str, ckpt_key: str | None):
+def loaded_method(st: RunState, name: str, ckpt_key: str | None) -> Method:
     """The method ``name`` built and loaded once per run (weights from its checkpoint unit)."""
     if (name, ckpt_key) not in st.methods:
         method = METHODS.get(name).build()
@@ -53,9 +56,9 @@ def _copy_dataset_files(in_dir: Path, dest: Path) -> None:
         write_splits(dest, read_splits(in_dir))
 
 
-def predict_files(method, files: list[Path], in_dir: Path, out_dir: Path,
+def predict_files(method: Method, files: list[Path], in_dir: Path, out_dir: Path,
                   ctx: PredictContext, progress: bool = True, label: str = "predict",
-                  on_done=None) -> None:
+                  on_done: Callable[[Sequence, float], None] | None = None) -> None:
     """Predict each sequence file of data folder ``in_dir`` into the same relative path
     under ``out_dir`` (GRAB layout), one torch thread, then copy meshes and splits so that
     ``out_dir`` is a complete dataset. ``on_done(seq, seconds)`` is called per input

@@ -13,11 +13,15 @@ from ...results.layout import CLEAN, MAIN_SPLIT
 from .predict import _predict_context, loaded_method
 
 if TYPE_CHECKING:
+    from ...data.sequence import Sequence
+    from ...methods.api import Method, PredictContext
     from ..execute import RunState
     from ..plan import Unit
 
 # --- stage: runtime -------------------------------------------------------------------------
-def _time_once(method, seqs, ctx, device: str) -> float:
+def _time_once(
+    method: Method, seqs: list[Sequence], ctx: PredictContext, device: str
+) -> float:
     t0 = time.perf_counter()
     for seq in seqs:
         method.predict(seq, ctx)

@@ -19,6 +19,7 @@ from collections import Counter, defaultdict
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,11 @@ from ...core.io import atomic_write_bytes
 from ..grab_io import OBJECT_MESH_DIR, dataset_hash
 from ..splits import write_splits
 from .world import GENERATOR_NAME, GENERATOR_VERSION, INTENTS, PROFILES, Profile, make_subjects
+
+if TYPE_CHECKING:
+    from .episode import Episode
+    from .objects import ObjectInstance
+    from .world import Subject
 
 # A hidden profile for tests: three small objects, three sequences.
 TINY = Profile("tiny", 2, 1, 3, (0.4, 0.3, 0.3, 0.0))
@@ -60,14 +66,14 @@ class PlanItem:
 
 
 # --- objects and splits ---------------------------------------------------------------------------
-def make_objects(profile: Profile, seed: int):
+def make_objects(profile: Profile, seed: int) -> list[ObjectInstance]:
     from .objects import FAMILIES, make_object_set
 
     families = TINY_FAMILIES if profile.name == "tiny" else FAMILIES.names()
     return make_object_set(seed, profile.instances_per_family, families)
 
 
-def choose_splits(objects, seed: int) -> dict[str, list[str]]:
+def choose_splits(objects: list[ObjectInstance], seed: int) -> dict[str, list[str]]:
     """Object splits: whole held-out families plus held-out instances of seen families.
 
     Test: every instance of TEST_FAMILIES and the last instance of ~1 in 5 other families
@@ -91,7 +97,7 @@ def choose_splits(objects, seed: int) -> dict[str, list[str]]:
     return splits
 
 
-def write_meshes(out: Path, objects) -> None:
+def write_meshes(out: Path, objects: list[ObjectInstance]) -> None:
     """Canonical (contact) meshes as ``tools/object_meshes/contact_meshes/<name>.ply``."""
     from .caches import contact_mesh
 
@@ -107,7 +113,13 @@ def _atomic_write(path: Path, data: bytes) -> None:
 
 
 # --- plan -----------------------------------------------------------------------------------------
-def plan(profile: Profile, n_subjects: int, objects, splits, seed: int) -> list[PlanItem]:
+def plan(
+    profile: Profile,
+    n_subjects: int,
+    objects: list[ObjectInstance],
+    splits: dict[str, list[str]],
+    seed: int,
+) -> list[PlanItem]:
     """The sequence list: objects cycled (held-out ones first, so that small profiles cover
     every split)."""
     rng = np.random.default_rng([seed, 9001])
@@ -132,7 +144,14 @@ def _attempts(intent: str) -> list[str]:
     return [intent, intent] + (["lift", "lift"] if intent != "lift" else ["lift"])
 
 
-def run_group(out: str, seed: int, profile: str, family_index: tuple[str, int], items, subjects):
+def run_group(
+    out: str,
+    seed: int,
+    profile: str,
+    family_index: tuple[str, int],
+    items: list[PlanItem],
+    subjects: list[Subject],
+) -> list[dict]:
     """Worker: all planned sequences of one object. Returns one result dict per item."""
     import torch
 
@@ -166,7 +185,7 @@ def run_group(out: str, seed: int, profile: str, family_index: tuple[str, int], 
     return results
 
 
-def episode_stats(ep) -> dict:
+def episode_stats(ep: Episode) -> dict:
     """Quality numbers of one episode (sums, so the report can pool them)."""
     mo, large = ep.motion, ep.cast.inst.large
     st = {"frames": mo.n_frames, "hands": {}}
@@ -200,7 +219,9 @@ def episode_stats(ep) -> dict:
 
 # --- orchestration
 # ----------------------------------------------------------------------------------
-def _groups(items: list[PlanItem], objects) -> list[tuple[tuple[str, int], list[PlanItem]]]:
+def _groups(
+    items: list[PlanItem], objects: list[ObjectInstance]
+) -> list[tuple[tuple[str, int], list[PlanItem]]]:
     """Planned items grouped by object (one distance field per object per worker), biggest first."""
     key = {o.name: (o.family, _instance_index(o.name)) for o in objects}
     groups = defaultdict(list)
@@ -214,7 +235,8 @@ def _instance_index(name: str) -> int:
     return int(tail) - 1 if head and tail.isdigit() else 0
 
 
-def run_plan(out: Path, seed: int, profile: Profile, items, objects, subjects, workers: int,
+def run_plan(out: Path, seed: int, profile: Profile, items: list[PlanItem],
+             objects: list[ObjectInstance], subjects: list[Subject], workers: int,
              progress: bool) -> list[dict]:
     """Run every group, in-process for one worker, else over a spawn-safe process pool."""
     from tqdm import tqdm
@@ -255,8 +277,8 @@ def name_files(out: Path, results: list[dict]) -> None:
         r["file"] = final.relative_to(out).as_posix()
 
 
-def generate(out_dir, profile: str = "smoke", seed: int = 0, workers: int | None = None,
-             progress: bool = True) -> dict:
+def generate(out_dir: str | os.PathLike, profile: str = "smoke", seed: int = 0,
+             workers: int | None = None, progress: bool = True) -> dict:
     """Write a SynthGRAB dataset into ``out_dir``; return its manifest (also ``manifest.json``).
 
     Layout: ``grab/s<k>/<object>_<intent>_<n>.npz``,
@@ -290,7 +312,7 @@ def generate(out_dir, profile: str = "smoke", seed: int = 0, workers: int | None
     return manifest
 
 
-def _counts(results, splits) -> dict:
+def _counts(results: list[dict], splits: dict[str, list[str]]) -> dict:
     ok = [r for r in results if r["ok"]]
     split_of = {o: s for s, objs in splits.items() for o in objs}
     return {
@@ -305,7 +327,7 @@ def _counts(results, splits) -> dict:
 
 # --- quality report
 # -----------------------------------------------------------------------------------
-def quality_report(results: list[dict], objects) -> dict:
+def quality_report(results: list[dict], objects: list[ObjectInstance]) -> dict:
     """Pool the episodes' statistics into the numbers compared with GRAB."""
     ok = [r for r in results if r["ok"]]
     tot = defaultdict(float)

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import copy
 import functools
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -31,6 +33,11 @@ from ...bodies.layouts import HAND_PARTS
 from ...core.constants import CONTACT_THRESHOLD
 from ...geometry.distance import DistanceField
 from ...geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+
+if TYPE_CHECKING:
+    import trimesh
+
+    from .objects import HandleRegion
 
 GAP = 0.0008  # m; resting clearance of a closed segment (well inside the 4.5 mm contact band)
 MAX_PENETRATION = 0.002  # m; deepest tolerated vertex of an accepted grasp
@@ -179,7 +186,7 @@ class DistanceBound:
     Built once per object (about 0.1 s), shared by the synthesizers of all hand sizes.
     """
 
-    def __init__(self, df: DistanceField, mesh, margin: float = 0.04):
+    def __init__(self, df: DistanceField, mesh: trimesh.Trimesh, margin: float = 0.04):
         lo, hi = (
             np.asarray(mesh.bounds[0], float) - margin,
             np.asarray(mesh.bounds[1], float) + margin,
@@ -214,13 +221,13 @@ class GraspSynthesizer:
 
     def __init__(
         self,
-        mesh,
+        mesh: trimesh.Trimesh,
         df: DistanceField,
         hand_scale: float,
         *,
         rest_height: float,
         grasp_hint: str,
-        handles=(),
+        handles: Iterable[HandleRegion] = (),
         large: bool = False,
         bound: DistanceBound | None = None,
     ):
@@ -276,7 +283,18 @@ class GraspSynthesizer:
                 return grasp
         return None
 
-    def _search_kind(self, side, dirs, finger_ref, rng, kind, target, above_table, avoid, up=1.0):
+    def _search_kind(
+        self,
+        side: str,
+        dirs: np.ndarray,
+        finger_ref: np.ndarray,
+        rng: np.random.Generator,
+        kind: str,
+        target: np.ndarray | None,
+        above_table: bool,
+        avoid: np.ndarray | None,
+        up: float = 1.0,
+    ) -> Grasp | None:
         """:meth:`search` for one grasp kind: the usual wrist rolls first, the far ones only
         when none of those holds (they rarely win the score: this halves the work)."""
         target = self._target(kind, up) if target is None else np.asarray(target, float)
@@ -298,19 +316,19 @@ class GraspSynthesizer:
 
     def _search_rolls(
         self,
-        side,
-        dirs,
-        finger_ref,
-        rng,
-        kind,
-        target,
-        above_table,
-        avoid,
-        up,
-        rolls,
-        wrap,
-        flat=False,
-    ):
+        side: str,
+        dirs: np.ndarray,
+        finger_ref: np.ndarray,
+        rng: np.random.Generator,
+        kind: str,
+        target: np.ndarray,
+        above_table: bool,
+        avoid: np.ndarray | None,
+        up: float,
+        rolls: np.ndarray,
+        wrap: bool,
+        flat: bool = False,
+    ) -> Grasp | None:
         R, rolls = self._orientations(side, dirs, finger_ref, kind, rolls, wrap)
         full, ids, sub = _light_hand(side, self.scale)
         local0 = np.broadcast_to(preshape_local(kind, flat=flat), (len(R), 15, 3)).copy()
@@ -380,7 +398,15 @@ class GraspSynthesizer:
         ]
         return np.unique(np.round(np.vstack([dirs, *extra]), 6), axis=0)
 
-    def _orientations(self, side, approach_dirs, finger_ref, kind, rolls=None, wrap: bool = True):
+    def _orientations(
+        self,
+        side: str,
+        approach_dirs: np.ndarray,
+        finger_ref: np.ndarray,
+        kind: str,
+        rolls: np.ndarray | None = None,
+        wrap: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Wrist rotations (C, 3, 3) for every approach and roll, and each roll angle (C,).
 
         rolls (rad): about the approach, from the preferred finger direction; ``wrap``: also
@@ -429,7 +455,15 @@ class GraspSynthesizer:
         palm = j[0, [0, 4, 10]].mean(0)  # wrist, middle and ring knuckles: palm centre
         return palm + 0.45 * (j[0, 5] - j[0, 4])  # a little towards the fingers
 
-    def _place(self, sub, R, local, target, n, kind):
+    def _place(
+        self,
+        sub: ProceduralHand,
+        R: np.ndarray,
+        local: np.ndarray,
+        target: np.ndarray,
+        n: np.ndarray,
+        kind: str,
+    ) -> np.ndarray:
         """Wrist positions (C, 3) after sphere-tracing each candidate along its palm normal
         ``n`` (C, 3).
 
@@ -460,7 +494,9 @@ class GraspSynthesizer:
         t[missed] = np.nan
         return t
 
-    def _close(self, side, R, t, local0, kind):
+    def _close(
+        self, side: str, R: np.ndarray, t: np.ndarray, local0: np.ndarray, kind: str
+    ) -> np.ndarray:
         """Flex every finger proximal to distal until contact or limit.
 
         Returns local poses (C, 15, 3)."""
@@ -483,7 +519,17 @@ class GraspSynthesizer:
             local = _apply(local, joints, dirs, lo)
         return local
 
-    def _sweep(self, sub, R, t, local, joints, dirs, room, moving):
+    def _sweep(
+        self,
+        sub: ProceduralHand,
+        R: np.ndarray,
+        t: np.ndarray,
+        local: np.ndarray,
+        joints: list[int],
+        dirs: np.ndarray,
+        room: np.ndarray,
+        moving: list[np.ndarray],
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Coarse sweep: bracket (lo, hi) (C, 5) of the flexion where each finger first touches."""
         C = len(R)
         fr = np.linspace(0.0, 1.0, SWEEP_STEPS + 1)
@@ -505,7 +551,14 @@ class GraspSynthesizer:
         hi = np.where(full, room, hi)
         return lo, hi
 
-    def _touching(self, sub, R, t, local, moving) -> np.ndarray:
+    def _touching(
+        self,
+        sub: ProceduralHand,
+        R: np.ndarray,
+        t: np.ndarray,
+        local: np.ndarray,
+        moving: list[np.ndarray],
+    ) -> np.ndarray:
         """Whether each finger's moving part is within GAP of the surface (N, 5)."""
         v, _ = _pose(sub, R, t, local)
         sd = self.bound.signed_distance(self.df, v.reshape(-1, 3), GAP).reshape(len(R), -1)
@@ -513,8 +566,20 @@ class GraspSynthesizer:
 
     # -- scoring -----------------------------------------------------------------------
     def _pick(
-        self, full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid=None, up=1.0
-    ):
+        self,
+        full: ProceduralHand,
+        side: str,
+        kind: str,
+        R: np.ndarray,
+        t: np.ndarray,
+        local: np.ndarray,
+        local0: np.ndarray,
+        rolls: np.ndarray,
+        rng: np.random.Generator,
+        above_table: bool,
+        avoid: np.ndarray | None = None,
+        up: float = 1.0,
+    ) -> Grasp | None:
         """Evaluate the closed candidates on the full hand and return the best valid one."""
         v, _ = _pose(full, R, t, local)
         sd = self.bound.signed_distance(self.df, v.reshape(-1, 3), CONTACT_THRESHOLD).reshape(
@@ -602,7 +667,9 @@ def _room(local_j: np.ndarray, d: np.ndarray, lower: np.ndarray, upper: np.ndarr
     return np.clip(bound.min(1), 0.0, None)
 
 
-def _apply(local: np.ndarray, joints, dirs: np.ndarray, amount: np.ndarray) -> np.ndarray:
+def _apply(
+    local: np.ndarray, joints: list[int], dirs: np.ndarray, amount: np.ndarray
+) -> np.ndarray:
     """Add ``amount`` (C, 5) along each joint's closing direction."""
     out = local.copy()
     for k, j in enumerate(joints):
@@ -610,7 +677,9 @@ def _apply(local: np.ndarray, joints, dirs: np.ndarray, amount: np.ndarray) -> n
     return out
 
 
-def _pose(hand: ProceduralHand, R: np.ndarray, t: np.ndarray, local: np.ndarray):
+def _pose(
+    hand: ProceduralHand, R: np.ndarray, t: np.ndarray, local: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Posed vertices and joints (numpy, object frame) for local poses (C, 15, 3)."""
     with torch.no_grad():
         dtype = hand.template_vertices.dtype
@@ -620,7 +689,7 @@ def _pose(hand: ProceduralHand, R: np.ndarray, t: np.ndarray, local: np.ndarray)
     return v.numpy(), j.numpy()
 
 
-def _local_to_aa(hand: ProceduralHand):
+def _local_to_aa(hand: ProceduralHand) -> Callable[[np.ndarray], np.ndarray]:
     def to_aa(local: np.ndarray) -> np.ndarray:
         with torch.no_grad():
             return hand.from_local(torch.as_tensor(local, dtype=torch.float64)).numpy()

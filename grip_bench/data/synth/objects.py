@@ -622,7 +622,18 @@ def _elephant(p: Params) -> Built:
 _W = (0.003, 0.005)  # vessel wall thickness range (m): real cups are 3-5 mm
 
 
-def _fam(name, size, params, build, hint, use, large=False, volume=None, note="", genus=0):
+def _fam(
+    name: str,
+    size: tuple[float, float],
+    params: dict[str, tuple[float, float]],
+    build: Callable[[Params], Built],
+    hint: str,
+    use: str,
+    large: bool = False,
+    volume: Callable[[Params], float] | None = None,
+    note: str = "",
+    genus: int = 0,
+) -> ObjectFamily:
     return ObjectFamily(name, size, params, build, hint, use, large, volume, note, genus)
 
 

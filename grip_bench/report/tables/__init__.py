@@ -27,9 +27,11 @@ File format (all keys listed in ``_TABLE_KEYS`` / ``_ROW_KEYS`` / ``_COLUMN_KEYS
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -38,6 +40,9 @@ from ...core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED, REPORT_DECIMALS
 from ...core.errors import InputError
 from ...core.registry import Registry
 from ...results.stats import CI, bootstrap_ci, sequence_ci
+
+if TYPE_CHECKING:
+    from ...metrics.registry import MetricSpec
 
 FILTER_KEYS = ("method", "dataset", "split", "perturbation", "metric", "hand")
 SOURCES = ("results", "runtime")
@@ -126,7 +131,9 @@ class TableSpec:
 
 
 # --- loading and validation -----------------------------------------------------------------
-def _check_keys(obj, allowed: dict, where: str, required=()) -> None:
+def _check_keys(
+    obj: object, allowed: dict, where: str, required: Iterable[str] = ()
+) -> None:
     if not isinstance(obj, dict):
         raise InputError(f"expected a table of keys, got {type(obj).__name__}", where=where)
     for key, value in obj.items():
@@ -147,13 +154,13 @@ def _filters(obj: dict, where: str) -> dict:
     return flt
 
 
-def _row(obj, where: str) -> RowSpec:
+def _row(obj: Any, where: str) -> RowSpec:
     _check_keys(obj, _ROW_KEYS, where, required=("label",))
     return RowSpec(label=obj["label"], filters=_filters(obj, where), group=obj.get("group"),
                    reference=obj.get("reference", False), mode=obj.get("mode"))
 
 
-def _column(obj, where: str, source: str) -> ColumnSpec:
+def _column(obj: Any, where: str, source: str) -> ColumnSpec:
     _check_keys(obj, _COLUMN_KEYS, where, required=("field",) if source == "runtime" else ())
     before = obj.get("before")
     if before is not None:
@@ -300,7 +307,9 @@ class TableData:
     notes: tuple[str, ...] = ()
 
 
-def _metric_info(metric: str | None, registry, data_units) -> tuple[str, bool | None, str]:
+def _metric_info(
+    metric: str | None, registry: Registry[MetricSpec] | None, data_units: Iterable[str]
+) -> tuple[str, bool | None, str]:
     """(unit, higher_is_better, display name) from the metric registry, else from the data."""
     if metric is not None and registry is not None and metric in registry:
         m = registry.get(metric)
@@ -309,7 +318,7 @@ def _metric_info(metric: str | None, registry, data_units) -> tuple[str, bool | 
     return (units[0] if len(units) == 1 else ""), None, metric or ""
 
 
-def default_metric_registry():
+def default_metric_registry() -> Registry[MetricSpec] | None:
     """The suite's metric registry, or ``None`` while it is not available."""
     try:
         from ...metrics.registry import METRICS
@@ -341,7 +350,14 @@ class _Index:
         return rows
 
 
-def _results_cell(index: _Index, flt: dict, col: ColumnSpec, registry, n_boot, seed) -> Cell:
+def _results_cell(
+    index: _Index,
+    flt: dict,
+    col: ColumnSpec,
+    registry: Registry[MetricSpec] | None,
+    n_boot: int,
+    seed: int,
+) -> Cell:
     rows = index.select(flt)
     unit, hib, _ = _metric_info(flt["metric"], registry, rows["unit"])
     ci = sequence_ci(rows, n_boot=n_boot, seed=seed) if len(rows) else None
@@ -359,7 +375,9 @@ def _decimals(col: ColumnSpec) -> int:
     return REPORT_DECIMALS if col.decimals is None else col.decimals
 
 
-def _column_header(spec: TableSpec, col: ColumnSpec, registry) -> Column:
+def _column_header(
+    spec: TableSpec, col: ColumnSpec, registry: Registry[MetricSpec] | None
+) -> Column:
     """Header of a column; unit and arrow only when the column fixes the metric."""
     metric = {**spec.defaults, **col.filters}.get("metric")
     if spec.source == "runtime":
@@ -400,7 +418,9 @@ def mark_best(rows: list[Row]) -> list[Row]:
     return out
 
 
-def _row_group_info(spec: TableSpec, row: RowSpec, registry) -> tuple[str | None, bool | None]:
+def _row_group_info(
+    spec: TableSpec, row: RowSpec, registry: Registry[MetricSpec] | None
+) -> tuple[str | None, bool | None]:
     """Unit and direction for a row's section heading when the row fixes the metric."""
     metric = row.filters.get("metric")
     if metric is None or any("metric" in c.filters for c in spec.columns):
@@ -415,7 +435,7 @@ def compute_table(
     runtime: pd.DataFrame | None = None,
     *,
     dataset: str | None = None,
-    metrics_registry=None,
+    metrics_registry: Registry[MetricSpec] | None = None,
     n_boot: int = BOOTSTRAP_N,
     seed: int = BOOTSTRAP_SEED,
 ) -> TableData:
@@ -431,7 +451,14 @@ def compute_table(
                      columns=columns, rows=tuple(mark_best(rows)), notes=spec.notes)
 
 
-def _results_rows(spec, results, dataset, registry, n_boot, seed) -> list[Row]:
+def _results_rows(
+    spec: TableSpec,
+    results: pd.DataFrame | None,
+    dataset: str | None,
+    registry: Registry[MetricSpec] | None,
+    n_boot: int,
+    seed: int,
+) -> list[Row]:
     if results is None:
         results = pd.DataFrame({c: [] for c in ("method", "metric", "perturbation", "dataset",
                                                 "split", "hand", "unit", "value")})
@@ -457,7 +484,9 @@ def _runtime_keys(runtime: pd.DataFrame, row: RowSpec) -> list[tuple]:
     return sorted(set(zip(sel["mode"], sel["device"], sel["batch"], strict=True)))
 
 
-def _runtime_rows(spec: TableSpec, runtime, n_boot: int, seed: int) -> list[Row]:
+def _runtime_rows(
+    spec: TableSpec, runtime: pd.DataFrame | None, n_boot: int, seed: int
+) -> list[Row]:
     """One row per (listed method) x (mode, device, batch) present; "–" when absent.
 
     Repeated measurements give a mean and a bootstrap interval over the repeats.
