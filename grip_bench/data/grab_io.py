@@ -42,6 +42,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import sys
 import zipfile
 from collections.abc import Iterable
 from pathlib import Path
@@ -126,12 +127,32 @@ def _natural_key(p: Path) -> list:
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.as_posix())]
 
 
+# GRAB's own ``save_grab_vertices.py`` writes ``<seq>_verts_{body,object,rhand,lhand}.npz``
+# beside the sequences by default: vertex arrays, not sequences.
+NOT_SEQUENCE_MARK = "_verts_"
+_noted: set[str] = set()
+
+
 def list_sequences(data_dir: str | os.PathLike) -> list[Path]:
-    """All ``DATA/grab/s<k>/*.npz`` files, in natural order (s2 before s10)."""
-    root = Path(data_dir) / "grab"
+    """All ``DATA/grab/s<k>/*.npz`` sequence files, in natural order (s2 before s10).
+
+    Files GRAB's tools write beside the sequences (``*_verts_*.npz``) are skipped, with a
+    one-line note on stderr per folder. A ``grab/`` folder passed instead of its parent is
+    an error that names the folder to pass.
+    """
+    data_dir = Path(data_dir)
+    root = data_dir / "grab"
     if not root.is_dir():
+        if data_dir.name == "grab" and any(data_dir.glob("s*/*.npz")):
+            raise InputError(f"this is the grab/ folder itself: pass its parent, "
+                             f"{data_dir.resolve().parent}", data_dir)
         raise InputError("no grab/ folder (expected DATA/grab/s<k>/*.npz)", data_dir)
-    files = [p for p in root.glob("s*/*.npz") if p.is_file()]
+    found = [p for p in root.glob("s*/*.npz") if p.is_file()]
+    files = [p for p in found if NOT_SEQUENCE_MARK not in p.stem]
+    if len(files) < len(found) and str(root) not in _noted:
+        _noted.add(str(root))
+        print(f"note: {root}: skipped {len(found) - len(files)} file(s) that are not sequences "
+              f"(GRAB's *{NOT_SEQUENCE_MARK}*.npz vertex files)", file=sys.stderr)
     return sorted(files, key=lambda p: _natural_key(p.relative_to(root)))
 
 

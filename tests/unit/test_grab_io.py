@@ -330,6 +330,26 @@ def test_list_sequences_and_paths(tmp_path):
         list_sequences(tmp_path / "grab")
 
 
+def test_grab_vertex_files_beside_the_sequences_are_skipped(tmp_path, capsys):
+    """GRAB's save_grab_vertices.py writes <seq>_verts_*.npz into the s<k>/ folders by
+    default: they are not sequences, so listing skips them (with a note) and reading works."""
+    write_dataset(tmp_path, [("s1", "mug", "lift"), ("s2", "apple", "pass")], T=5)
+    for part in ("body", "object", "rhand", "lhand"):
+        np.savez(tmp_path / "grab" / "s1" / f"mug_lift_1_verts_{part}.npz",
+                 verts=np.zeros((5, 10, 3), np.float32))
+    files = list_sequences(tmp_path)
+    assert [p.name for p in files] == ["mug_lift_1.npz", "apple_pass_1.npz"]
+    assert "skipped 4 file(s) that are not sequences" in capsys.readouterr().err
+    assert all(read_grab(p).n_frames == 5 for p in files)
+
+
+def test_the_grab_folder_itself_is_refused_with_the_folder_to_pass(tmp_path):
+    write_dataset(tmp_path, [("s1", "mug", "lift")], T=5)
+    with pytest.raises(InputError, match="pass its parent") as err:
+        list_sequences(tmp_path / "grab")
+    assert str(tmp_path.resolve()) in err.value.what
+
+
 def test_dataset_hash_tracks_content_and_names(tmp_path):
     write_dataset(tmp_path, [("s1", "mug", "lift")], T=5)
     h0 = dataset_hash(tmp_path)
