@@ -27,19 +27,34 @@ ROOT_PACKAGES = ("grip_bench", "grip_baselines")
 
 
 def installed_roots() -> dict[str, Path]:
-    """``{top package: folder}`` of the importable ``grip_bench`` and ``grip_baselines``."""
+    """``{top package: folder}`` of ``grip_bench``, ``grip_baselines`` and the top packages of
+    installed method plug-ins (their code is part of their units' keys too)."""
     import importlib
 
-    return {name: Path(importlib.import_module(name).__file__).parent for name in ROOT_PACKAGES}
+    from ..methods.api import plugin_modules
+
+    names = [*ROOT_PACKAGES, *(m.split(".")[0] for m in plugin_modules())]
+    roots = {}
+    for name in dict.fromkeys(names):
+        module = importlib.import_module(name)
+        if module.__file__ is None:  # a namespace package has no folder of its own to hash
+            continue
+        is_package = hasattr(module, "__path__")
+        roots[name] = Path(module.__file__).parent if is_package else Path(module.__file__)
+    return roots
 
 
 class CodeIndex:
-    """Module files and their internal imports under ``roots`` (``{package: folder}``)."""
+    """Module files and their internal imports under ``roots`` (``{package: folder}``, or
+    ``{module: file}`` for a top-level module)."""
 
     def __init__(self, roots: Mapping[str, Path]):
         self.files: dict[str, Path] = {}
         self.packages: set[str] = set()
         for top, folder in roots.items():
+            if Path(folder).suffix == ".py":  # a top-level module, not a package
+                self.files[top] = Path(folder)
+                continue
             for path in sorted(Path(folder).rglob("*.py")):
                 parts = [top, *path.relative_to(folder).with_suffix("").parts]
                 if parts[-1] == "__init__":
