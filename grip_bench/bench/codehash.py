@@ -3,10 +3,14 @@
 A unit's cache key must change when, and only when, code that produces its content
 changes. Hashing one folder (the old way) missed code the unit imports from elsewhere
 (``sensors.py`` for GRIP, ``geometry/distance.py`` for the metrics) and re-ran units for
-edits they never execute. Here the key covers the bytes of every module the unit's entry
+edits they never execute. Here the key covers the code of every module the unit's entry
 modules import, directly or not, read from the source with :mod:`ast` (imports inside
 functions included, ``if TYPE_CHECKING:`` blocks excluded), plus the ``__init__.py`` of
 every package on the way, since importing a module runs them.
+
+A module's code is its syntax tree without docstrings (``ast.dump``: no comments, no line
+numbers), so an edit of a comment, a docstring or the layout renews nothing, while any
+change to a statement, a name, a constant or an annotation does.
 
 Methods are found through the registry by name (``importlib``), so a unit that runs a
 method names the method's module as an entry itself (``bench.plan``).
@@ -62,6 +66,7 @@ class CodeIndex:
                     self.packages.add(".".join(parts))
                 self.files[".".join(parts)] = path
         self._imports: dict[str, frozenset[str]] = {}
+        self._trees: dict[str, ast.Module] = {}
 
     @classmethod
     @functools.cache
@@ -73,7 +78,7 @@ class CodeIndex:
     def imports(self, module: str) -> frozenset[str]:
         """Internal modules ``module`` imports anywhere in its file (not TYPE_CHECKING)."""
         if module not in self._imports:
-            tree = ast.parse(self.files[module].read_bytes())
+            tree = self._tree(module)
             pkg = module if module in self.packages else module.rpartition(".")[0]
             found: set[str] = set()
             for node in _runtime_nodes(tree):
@@ -86,6 +91,15 @@ class CodeIndex:
             found.discard("")
             self._imports[module] = frozenset(found)
         return self._imports[module]
+
+    def _tree(self, module: str) -> ast.Module:
+        if module not in self._trees:
+            self._trees[module] = ast.parse(self.files[module].read_bytes())
+        return self._trees[module]
+
+    def code(self, module: str) -> bytes:
+        """What of ``module`` counts as code: its syntax tree without docstrings."""
+        return ast.dump(_without_docstrings(self._tree(module))).encode()
 
     def _known(self, name: str) -> str:
         """``name`` or its longest prefix that is a module of the index ('' if none)."""
@@ -109,10 +123,10 @@ class CodeIndex:
         return sorted(seen)
 
     def digest(self, entries: Iterable[str]) -> str:
-        """sha256 over the names and bytes of :meth:`closure` of ``entries``."""
+        """sha256 over the names and :meth:`code` of the :meth:`closure` of ``entries``."""
         h = hashlib.sha256()
         for mod in self.closure(entries):
-            h.update(mod.encode() + b"\0" + self.files[mod].read_bytes() + b"\0")
+            h.update(mod.encode() + b"\0" + self.code(mod) + b"\0")
         return h.hexdigest()
 
 
@@ -144,3 +158,18 @@ def _runtime_nodes(tree: ast.AST) -> Iterator[ast.AST]:
 def _is_type_checking(test: ast.expr) -> bool:
     return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
         isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def _without_docstrings(tree: ast.Module) -> ast.Module:
+    """A copy of ``tree`` whose module, class and function docstrings are removed."""
+    import copy
+
+    tree = copy.deepcopy(tree)
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
+                and body and isinstance(body[0], ast.Expr)
+                and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return tree

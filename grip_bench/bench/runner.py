@@ -13,7 +13,7 @@ data source and size, tables, methods, perturbations, metrics, seeds, bootstrap,
 Which units exist follows from the tables: every chosen method predicts on the clean
 test split (leaderboard) and on each perturbed set a chosen table reads it on (Table 3
 and its "before" row); a method the tables name but nobody registered yet is skipped
-with a note, and its cells stay empty. On perturbed sets ``ctx.extra["refine"]`` is set
+with a note, and its cells stay empty. On perturbed sets ``PredictContext.refine`` is set
 (refine the given noisy hands, GRIP Table 3).
 
 Layout of ``OUT`` (default ``runs/<profile>``)::
@@ -25,7 +25,7 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
         prediction   grab/... + tools/... + splits.json (a GRAB-layout folder)
         metrics      results.csv [frames.csv] evaluation.json contact_stats.npz
         runtime      runtime.json (timed predictions, rows of runtime.csv)
-    OUT/cache/features/            GRIP's sensor features per data hash, shared by its variants
+    OUT/cache/features/<code>/     GRIP's sensor features per data hash, shared by its variants
     OUT/results.csv                tidy results of every metric unit (docs/contract.md, "Results")
     OUT/frames.csv                 per-frame values (when [run] per_frame = true)
     OUT/runtime.csv                prediction time per frame per method and mode
@@ -39,13 +39,13 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
                                    wall time per stage (docs/contract.md, "Results")
     OUT/run.log                    what each run did (appended)
 
-Cache keys: ``bench.cache.unit_key(kind, inputs)`` where ``inputs`` holds everything the
-unit's content depends on: its configuration (profile sections, seeds, sigmas, metric ids,
-versions and evaluation options), the **keys of the units it reads** (so a change upstream
-invalidates everything downstream and nothing else) and a digest of the code that produces
-it (synth generator and data layer folders, metrics folder, a trainable method's package
-folder, a fixed method's module file), so editing code does not silently reuse stale
-results. ``device`` enters the keys of units that run a trainable network (GPU and CPU
+Cache keys (``bench.plan``): ``bench.cache.unit_key(kind, inputs)`` where ``inputs`` holds
+everything the unit's content depends on: its configuration (profile sections, seeds,
+sigmas, metric ids, versions and evaluation options), the **keys of the units it reads** (so
+a change upstream invalidates everything downstream and nothing else) and a digest of the
+code it runs (``bench.codehash``: the import closure of the unit kind's stage module and of
+the method's module; docs/architecture.md, "Cache keys"), so editing code does not silently
+reuse stale results. ``device`` enters the keys of units that run a trainable network (GPU and CPU
 weights differ); fixed methods are device-independent. Methods reporting the same
 ``train_key()`` (GRIP variants that differ only at inference) share one checkpoint unit.
 
@@ -54,9 +54,11 @@ nothing, and the next run does only what is missing. Training writes into
 ``cache/work/<key>/`` first, so a method that checkpoints its progress (GRIP's
 ``.partial``) resumes there after a kill.
 
-``grip-bench report OUT`` re-renders tables, leaderboard and figures from ``OUT`` alone
-with :func:`write_report`, the very function ``run`` ends with, so both write the same
-bytes.
+This module runs the stages in order (``STAGE_FUNCTIONS``; the work of each unit kind is
+in ``bench.stages``, the plan in ``bench.plan``, execution in ``bench.execute``) and
+assembles the report. ``grip-bench report OUT`` re-renders tables, leaderboard and figures
+from ``OUT`` alone with ``report.write.write_report``, the very function ``run`` ends with,
+so both write the same bytes.
 """
 
 from __future__ import annotations

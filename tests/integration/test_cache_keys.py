@@ -3,7 +3,8 @@ that run it (and to the units downstream of those), and ``run --dry-run`` says t
 
 Each case copies the source tree (``grip_bench`` and ``grip_baselines``) to a temporary
 folder, plans the smoke profile from the copy in a fresh interpreter, appends a comment to
-one module of the copy, plans again and compares unit by unit.
+one statement to one module of the copy, plans again and compares unit by unit. Comments
+and docstrings are not code: editing them renews nothing.
 """
 
 from __future__ import annotations
@@ -79,11 +80,14 @@ def baseline(source_copy, tmp_path_factory) -> dict[str, dict]:
     return _plan(source_copy, tmp_path_factory.mktemp("plan0"))
 
 
-def _edit_and_plan(src: Path, rel: str, out: Path) -> dict[str, dict]:
+CODE_EDIT = b"\n_CACHE_KEY_PROBE = 1  # a new statement: new code\n"
+
+
+def _edit_and_plan(src: Path, rel: str, out: Path, edit: bytes = CODE_EDIT) -> dict[str, dict]:
     path = src / rel
     original = path.read_bytes()
     try:
-        path.write_bytes(original + b"\n# an edit that changes nothing but the bytes\n")
+        path.write_bytes(original + edit)
         return _plan(src, out)
     finally:
         path.write_bytes(original)
@@ -143,7 +147,7 @@ def test_dry_run_marks_exactly_the_changed_units_todo(source_copy, baseline, tmp
     path = source_copy / rel
     original = path.read_bytes()
     try:
-        path.write_bytes(original + b"\n# an edit that changes nothing but the bytes\n")
+        path.write_bytes(original + CODE_EDIT)
         done = subprocess.run([sys.executable, "-m", "grip_bench", "run", "--profile", "smoke",
                                "--out", str(out), "--dry-run", "--quiet"],
                               env=_env(source_copy), cwd=source_copy, capture_output=True,
@@ -154,3 +158,17 @@ def test_dry_run_marks_exactly_the_changed_units_todo(source_copy, baseline, tmp
             if line.startswith("[todo]")}
     assert todo == changed and todo
     assert any(line.startswith("[cached]") for line in done.stdout.splitlines())
+
+
+def test_comments_and_docstrings_are_not_code(source_copy, baseline, tmp_path):
+    """A docstring edit and a new comment in sensors.py renew no unit."""
+    path = source_copy / "grip_bench/sensors.py"
+    text = path.read_text(encoding="utf-8")
+    doc_end = text.index('"""', 3)  # the end of the module docstring
+    try:
+        path.write_text(text[:doc_end] + " Edited.\n" + text[doc_end:] + "\n# a comment\n",
+                        encoding="utf-8")
+        after = _plan(source_copy, tmp_path / "out")
+    finally:
+        path.write_text(text, encoding="utf-8")
+    assert {k: u["key"] for k, u in after.items()} == {k: u["key"] for k, u in baseline.items()}

@@ -100,7 +100,7 @@ def test_a_plugins_code_is_in_its_units_keys(plugin: Path) -> None:
     closure = index.closure(["bentplug.method"])
     assert {"bentplug", "bentplug.method", "grip_bench.methods.api"} <= set(closure)
     before = index.digest(["bentplug.method"])
-    (plugin / "bentplug" / "method.py").write_text(PLUGIN + "\n# edited\n")
+    (plugin / "bentplug" / "method.py").write_text(PLUGIN + "\nEDITED = True\n")
     assert CodeIndex(roots).digest(["bentplug.method"]) != before
 
 
