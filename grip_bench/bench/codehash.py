@@ -67,6 +67,8 @@ class CodeIndex:
                 self.files[".".join(parts)] = path
         self._imports: dict[str, frozenset[str]] = {}
         self._trees: dict[str, ast.Module] = {}
+        self._code: dict[str, bytes] = {}
+        self._digests: dict[tuple[str, ...], str] = {}
 
     @classmethod
     @functools.cache
@@ -99,7 +101,9 @@ class CodeIndex:
 
     def code(self, module: str) -> bytes:
         """What of ``module`` counts as code: its syntax tree without docstrings."""
-        return ast.dump(_without_docstrings(self._tree(module))).encode()
+        if module not in self._code:
+            self._code[module] = ast.dump(_without_docstrings(self._tree(module))).encode()
+        return self._code[module]
 
     def _known(self, name: str) -> str:
         """``name`` or its longest prefix that is a module of the index ('' if none)."""
@@ -124,10 +128,13 @@ class CodeIndex:
 
     def digest(self, entries: Iterable[str]) -> str:
         """sha256 over the names and :meth:`code` of the :meth:`closure` of ``entries``."""
-        h = hashlib.sha256()
-        for mod in self.closure(entries):
-            h.update(mod.encode() + b"\0" + self.code(mod) + b"\0")
-        return h.hexdigest()
+        key = tuple(entries)
+        if key not in self._digests:
+            h = hashlib.sha256()
+            for mod in self.closure(key):
+                h.update(mod.encode() + b"\0" + self.code(mod) + b"\0")
+            self._digests[key] = h.hexdigest()
+        return self._digests[key]
 
 
 def _missing(name: str) -> str:
