@@ -119,6 +119,34 @@ SIM_COACD_MAX_HULLS = -1  # no cap: the threshold decides
 SIM_COACD_RESOLUTION = 1000  # CoACD sampling resolution (default 2000); halves run time
 SIM_COACD_MCTS_ITERATIONS = 60  # default 150
 SIM_COACD_MCTS_NODES = 10  # default 20
+# The hold test (grip_bench.metrics.hold; experimental, not yet in the tables): an articulated
+# hand squeezes and holds. The friction, solver and cone settings are the SIM_* above.
+HOLD_CONTACT_MARGIN = 0.0  # m; no skin margin: the servos close the gap, nothing pushes at t = 0
+HOLD_TOUCH = 0.002  # m; finger bones this close to the object are tightened toward it
+HOLD_TIGHTEN = 0.0015  # m; how far past the surface each touching bone is driven (a squeeze)
+HOLD_SETTLE_SECONDS = 0.2  # s without gravity: contacts settle, a penetrating grasp explodes
+HOLD_SETTLE_DAMPING = (20.0, 0.05)  # N s/m, N m s/rad on the object while settling: it creeps
+# to where the contacts balance instead of keeping the momentum of the first touch
+HOLD_RAMP_SECONDS = 0.1  # s; the servo targets move from the frame's pose to the tightened one
+HOLD_SETTLE_FAIL = 0.005  # m; settle displacement beyond this fails the test
+HOLD_DISP = 0.02  # m; success: the object moves less than this during the hold ...
+HOLD_ROT = 15.0  # degrees; ... and turns less than this
+HOLD_DISP_CAP = 0.1  # m; displacements (and diverged runs) enter medians capped here
+HOLD_REACH = 0.02  # m; hand and object pieces farther apart than this are left out (see hold)
+HOLD_FINGER_KP = 10.0  # N m / rad; finger joint position servos
+HOLD_FINGER_KV = 0.3  # N m s / rad; about critical damping with the armature below
+HOLD_FINGER_TORQUE = 0.3  # N m; servo torque cap: a human finger joint exerts ~1 N m at most
+HOLD_BONE_MASS = 0.005  # kg per finger bone (gravity-compensated: the hand does not sag)
+HOLD_ARMATURE = 2e-3  # kg m^2; reflected inertia of a finger joint: servo period ~90 ms >> SIM_DT
+SIM_FREE_FALL_5 = 0.5 * GRAVITY * SIM_DT**2 * SIM_PAPER_STEPS * (SIM_PAPER_STEPS + 1)
+# m (2.55 mm): free fall over the support test's 5 semi-implicit Euler steps, printed beside it
+
+# Collision pieces (grip_bench.geometry.pieces): outward error measured and bounded.
+PIECE_MAX_ERROR = 0.0005  # m; a piece's hull may stick out at most this far past the surface
+PIECE_DEPTH = 0.003  # m; inner layer of a surface patch's prism (halved at thin walls)
+PIECE_HAND_DEPTH = 0.002  # m; the same for hand bones (fingers are >= 6 mm thick)
+PIECE_MIN_DEPTH = 0.00025  # m; thinner prisms collide unreliably (MuJoCo's margin is 1 mm)
+PIECE_PATCH_FACES = 64  # faces per patch before error-driven splits (~1 cm^2 on SynthGRAB)
 
 # --- synth objects ---------------------------------------------------------------
 SYNTH_OBJ_SEGMENTS = 40  # circular segments for hand-sized parts (~0.3% cylinder volume loss)

@@ -1,0 +1,578 @@
+"""The hold test in MuJoCo: does the hand hold the object? (experimental; docs/contract.md,
+"Physics: the hold test").
+
+Not in the tables yet: on SynthGRAB ground truth it does not pass its own sanity gate
+(see docs/contract.md); ``metrics.physics`` keeps the reported 5-step and 1 s tests.
+
+Two tests share one scene per frame:
+
+- **Hold test** (the verdict). The hand is articulated: a fixed wrist body and one body per
+  finger bone at its posed joint, three hinges per joint with capped position servos
+  (``HOLD_FINGER_*``). Finger bones within ``HOLD_TOUCH`` of the object are driven
+  ``HOLD_TIGHTEN`` further toward it (the servos' targets, solved through MuJoCo's contact
+  Jacobians), so the hand squeezes with at most the servo torque. The object settles
+  ``HOLD_SETTLE_SECONDS`` without gravity (a penetrating grasp is pushed out: a settle
+  displacement beyond ``HOLD_SETTLE_FAIL`` fails), then holds ``SIM_HOLD_SECONDS`` under the
+  frame's gravity, or under each of the six axis directions as a robustness variant.
+  Success: the object moves less than ``HOLD_DISP`` and turns less than ``HOLD_ROT``
+  during the hold. A diverged run is a failure with the capped displacement, never dropped.
+- **Support test** (GRIP supp. Sec. 11): from rest, under gravity, with the hand as it is,
+  the object moves < 1 mm in 5 steps of 1/240 s. Free fall alone moves it 2.55 mm
+  (``SIM_FREE_FALL_5``), so the test tells "something supports it" from "nothing does".
+
+Collision geometry is ``geometry.pieces``: the object's and the hand's pieces stick out at
+most ``PIECE_MAX_ERROR`` (measured), so a concave object stays concave and contacts start
+where the surfaces are. Pieces farther than ``HOLD_REACH`` from the other body are left out
+of a frame's scene: the object would have to move that far relative to the hand, beyond the
+success threshold, to reach them (a rotation about a far pivot could; so could a large
+object slowly turning around the hand, which then fails on rotation).
+
+``mujoco`` is imported inside the functions to keep ``grip_bench.metrics`` light.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from dataclasses import dataclass
+from functools import cached_property
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..core import constants as C
+from ..geometry.pieces import SurfacePieces, surface_pieces, vertex_normals
+
+if TYPE_CHECKING:  # trimesh costs 0.5 s to import; `grip-bench ls` should not pay it
+    import mujoco
+    import trimesh
+
+AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
+
+
+@dataclass(frozen=True)
+class HoldResult:
+    """One hold test: ``settle`` (m) object displacement while settling; ``displacement`` (m)
+    and ``rotation`` (degrees) during the hold (``HOLD_DISP_CAP`` / 180 when diverged);
+    ``held`` the verdict; ``diverged`` NaN or runaway velocity."""
+
+    settle: float
+    displacement: float
+    rotation: float
+    held: bool
+    diverged: bool
+
+
+@dataclass(frozen=True)
+class SupportResult:
+    """GRIP's 5-step support test: ``displacement`` (m, NaN when diverged) and ``stable``."""
+
+    displacement: float
+    stable: bool
+    diverged: bool
+
+
+@dataclass
+class PosedHand:
+    """One hand of one frame, world frame: vertices (V, 3) m, faces (F, 3), its 16 joints
+    (16, 3) m (wrist first, MANO order), ``parents`` (16,), ``bone_ids`` (V,) (skinning bone
+    per vertex), ``pieces`` (the hand model's :class:`SurfacePieces`, labelled by bone) and
+    signed distances (V,) m of the vertices to the object (which bones to tighten)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    joints: np.ndarray
+    parents: tuple[int, ...]
+    bone_ids: np.ndarray
+    pieces: SurfacePieces
+    signed_dist: np.ndarray
+
+    @cached_property
+    def normals(self) -> np.ndarray:
+        """Unit vertex normals (V, 3)."""
+        return vertex_normals(self.vertices, self.faces)
+
+
+# ---------------------------------------------------------------- collision pieces
+_OBJECT_PIECES: OrderedDict[str, SurfacePieces] = OrderedDict()
+
+
+def _piece_params() -> dict:
+    from ..geometry.cache import package_version
+
+    return {"max_error": C.PIECE_MAX_ERROR, "depth": C.PIECE_DEPTH,
+            "hand_depth": C.PIECE_HAND_DEPTH, "min_depth": C.PIECE_MIN_DEPTH,
+            "patch_faces": C.PIECE_PATCH_FACES, "scipy": package_version("scipy"),
+            "igl": package_version("libigl"), "algorithm": 1}
+
+
+def object_pieces(mesh: trimesh.Trimesh) -> SurfacePieces:
+    """The object's collision pieces (object frame), cached by mesh content in memory and in
+    the on-disk geometry cache (a few seconds for a concave mesh, once per machine)."""
+    from ..geometry.cache import cached_arrays, mesh_key
+
+    key = mesh_key("surface_pieces", mesh.vertices, mesh.faces, _piece_params())
+    if key not in _OBJECT_PIECES:
+        a = cached_arrays("surface_pieces", key, lambda: surface_pieces(
+            mesh.vertices, mesh.faces).to_arrays(), names=("ids", "sizes", "depth", "error"))
+        _remember(_OBJECT_PIECES, key, SurfacePieces.from_arrays(a))
+    return _OBJECT_PIECES[key]
+
+
+def hand_pieces(template: np.ndarray, faces: np.ndarray, bone_ids: np.ndarray,
+                poses: list[np.ndarray] = ()) -> SurfacePieces:
+    """A hand model's pieces, one bone each, error bounded on ``template`` (V, 3) and on each
+    extra posed vertex set in ``poses`` (the pieces are re-posed with the hand every frame).
+    Cached like :func:`object_pieces`."""
+    from ..geometry.cache import cached_arrays, mesh_key
+    from ..geometry.pieces import ExactDistance, outward_errors
+
+    h = hashlib.sha256(np.ascontiguousarray(bone_ids, np.int64).tobytes())
+    for p in poses:
+        h.update(np.ascontiguousarray(p, np.float64).tobytes())
+    key = mesh_key("hand_pieces", template, faces, {**_piece_params(), "poses": h.hexdigest()})
+    if key in _OBJECT_PIECES:
+        return _OBJECT_PIECES[key]
+
+    def build() -> dict[str, np.ndarray]:
+        pieces = surface_pieces(template, faces, labels=bone_ids, depth=C.PIECE_HAND_DEPTH)
+        for _ in range(4):  # split further where a pose bends a piece past the bound
+            bad = np.zeros(len(pieces), bool)
+            for p in poses:
+                err = outward_errors(pieces.points(p, vertex_normals(p, faces)),
+                                     ExactDistance(p, faces))
+                bad |= err > C.PIECE_MAX_ERROR
+            if not bad.any():
+                break
+            pieces = _refine(pieces, bad, template, faces, bone_ids)
+        return pieces.to_arrays()
+
+    a = cached_arrays("hand_pieces", key, build, names=("ids", "sizes", "depth", "error"))
+    _remember(_OBJECT_PIECES, key, SurfacePieces.from_arrays(a))
+    return _OBJECT_PIECES[key]
+
+
+def _refine(pieces: SurfacePieces, bad: np.ndarray, v: np.ndarray, f: np.ndarray,
+            labels: np.ndarray) -> SurfacePieces:
+    """Rebuild the pieces flagged ``bad`` from smaller patches (a quarter of the faces)."""
+    keep = [i for i, b in enumerate(bad) if not b]
+    ids = [pieces.vertex_ids[i] for i in keep]
+    depth = list(pieces.depth[keep])
+    err = list(pieces.error[keep])
+    for i in np.flatnonzero(bad):
+        own = np.isin(f, pieces.vertex_ids[i]).all(1)
+        sub_f = f[own]
+        if len(sub_f) <= 1:
+            ids.append(pieces.vertex_ids[i])
+            depth.append(pieces.depth[i])
+            err.append(pieces.error[i])
+            continue
+        sub = surface_pieces(v, sub_f, labels=labels, depth=pieces.depth[i],
+                             patch_faces=max(1, len(sub_f) // 4))
+        ids.extend(sub.vertex_ids)
+        depth.extend(sub.depth)
+        err.extend(sub.error)
+    return SurfacePieces(tuple(ids), np.asarray(depth), np.asarray(err))
+
+
+# ---------------------------------------------------------------- scene
+_LRU_SIZE = 16
+_INERTIA_CACHE: OrderedDict[str, tuple] = OrderedDict()
+
+
+def _remember(cache: OrderedDict, key: str, value: object) -> None:
+    cache[key] = value
+    cache.move_to_end(key)
+    if len(cache) > _LRU_SIZE:
+        cache.popitem(last=False)
+
+
+def _contact_params(geom: mujoco.MjsGeom, hand: bool) -> None:
+    """Contact settings shared by hand and object geoms (the why lives in constants).
+
+    Hand geoms collide with the object only (contype / conaffinity bits), never with each
+    other; MuJoCo adds the margins of a pair, so only the hand carries one.
+    """
+    geom.friction = [C.SIM_FRICTION, C.SIM_TORSIONAL_FRICTION, C.SIM_ROLLING_FRICTION]
+    geom.condim = C.SIM_CONDIM
+    geom.solref = list(C.SIM_SOLREF)
+    geom.solimp = list(C.SIM_SOLIMP)
+    geom.margin = C.HOLD_CONTACT_MARGIN if hand else 0.0
+    geom.gap = 0.0
+    geom.contype, geom.conaffinity = (1, 2) if hand else (2, 1)
+    geom.mass = 0.0  # bodies carry explicit inertia
+
+
+def _add_pieces(spec: mujoco.MjSpec, body: mujoco.MjsBody, pieces: list[np.ndarray],
+                prefix: str, hand: bool, origin: np.ndarray | None = None) -> None:
+    import mujoco
+
+    for i, pts in enumerate(pieces):
+        mesh = spec.add_mesh()
+        mesh.name = f"{prefix}{i}"
+        local = pts if origin is None else pts - origin
+        mesh.uservert = np.asarray(local, dtype=np.float64).ravel().tolist()
+        geom = body.add_geom()
+        geom.type = mujoco.mjtGeom.mjGEOM_MESH
+        geom.meshname = mesh.name
+        _contact_params(geom, hand)
+
+
+def _object_inertia(obj: trimesh.Trimesh, density: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, centre of mass (3,) and inertia [xx, yy, zz, xy, xz, yz] of the true shape."""
+    import trimesh
+
+    key = hashlib.sha1(np.ascontiguousarray(obj.vertices, np.float64).tobytes()
+                       + repr(density).encode()).hexdigest()
+    if key not in _INERTIA_CACHE:
+        props = trimesh.triangles.mass_properties(obj.triangles, density=density)
+        i = np.asarray(props.inertia)
+        full = np.array([i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]])
+        _remember(_INERTIA_CACHE, key, (float(props.mass), np.asarray(props.center_mass), full))
+    mass, com, full = _INERTIA_CACHE[key]
+    return mass, com.copy(), full.copy()
+
+
+def _near(points: list[np.ndarray], other: np.ndarray, reach: float) -> list[bool]:
+    """Whether each point set (n_i, 3) comes within ``reach`` of the point cloud ``other``."""
+    from scipy.spatial import cKDTree
+
+    if len(other) == 0:
+        return [False] * len(points)
+    tree = cKDTree(other)
+    return [bool(np.isfinite(tree.query(p, k=1, distance_upper_bound=reach)[0]).any())
+            for p in points]
+
+
+@dataclass
+class Scene:
+    """A compiled frame: the model, which finger joints belong to which hand bone, and the
+    servo targets that tighten the grasp."""
+
+    model: mujoco.MjModel
+    targets: np.ndarray
+    n_hands: int
+
+
+def _spec(up: tuple[float, float, float], friction: float = C.SIM_FRICTION) -> mujoco.MjSpec:
+    import mujoco
+
+    spec = mujoco.MjSpec()
+    spec.option.timestep = C.SIM_DT
+    spec.option.gravity = (-C.GRAVITY * np.asarray(up, dtype=np.float64)).tolist()
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST  # servo damping implicit
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC  # no pyramid bias on pinch grasps
+    spec.option.impratio = C.SIM_IMPRATIO  # stiffer friction than normal: less creep in a hold
+    return spec
+
+
+def _add_object(spec: mujoco.MjSpec, obj: trimesh.Trimesh, pieces: list[np.ndarray],
+                pose: tuple[np.ndarray, np.ndarray] | None, density: float) -> None:
+    body = spec.worldbody.add_body()
+    body.name = "object"
+    if pose is not None:
+        rot, trans = pose
+        body.pos = np.asarray(trans, dtype=np.float64).tolist()
+        body.quat = _matrix_to_wxyz(np.asarray(rot, dtype=np.float64)).tolist()
+    body.add_freejoint()
+    mass, com, full = _object_inertia(obj, density)
+    body.explicitinertial = True
+    body.mass, body.ipos, body.fullinertia = mass, com.tolist(), full.tolist()
+    _add_pieces(spec, body, pieces, "obj", hand=False)
+
+
+def _object_world_pieces(obj: trimesh.Trimesh, pose: tuple[np.ndarray, np.ndarray] | None
+                         ) -> tuple[list[np.ndarray], np.ndarray]:
+    """The object's pieces in its own frame and its vertices in the world (N, 3)."""
+    pieces = object_pieces(obj)
+    v = np.asarray(obj.vertices, dtype=np.float64)
+    local = pieces.points(v, vertex_normals(v, obj.faces))
+    world = v if pose is None else v @ np.asarray(pose[0]).T + np.asarray(pose[1])
+    return local, world
+
+
+def _to_world(local: list[np.ndarray], pose: tuple[np.ndarray, np.ndarray] | None
+              ) -> list[np.ndarray]:
+    if pose is None:
+        return local
+    R, t = np.asarray(pose[0]), np.asarray(pose[1])
+    return [p @ R.T + t for p in local]
+
+
+def static_scene(hand_meshes: list[trimesh.Trimesh], obj: trimesh.Trimesh,
+                 obj_pose: tuple[np.ndarray, np.ndarray] | None = None,
+                 up: tuple[float, float, float] = C.UP,
+                 density: float = C.DEFAULT_DENSITY) -> Scene:
+    """Static "hands" (any closed meshes, world frame, bounded-error pieces each) and the free
+    object (own frame, placed by ``obj_pose`` = (R, t), world = R @ local + t)."""
+    spec = _spec(up)
+    local, obj_world = _object_world_pieces(obj, obj_pose)
+    hand_world = []
+    for i, h in enumerate(hand_meshes):
+        v = np.asarray(h.vertices, dtype=np.float64)
+        pts = surface_pieces(v, h.faces).points(v, vertex_normals(v, h.faces))
+        keep = _near(pts, obj_world, C.HOLD_REACH)
+        _add_pieces(spec, spec.worldbody, [p for p, k in zip(pts, keep, strict=True) if k],
+                    f"hand{i}_", hand=True)
+        hand_world.extend(pts)
+    _add_object(spec, obj, _select_object(local, obj_pose, hand_world), obj_pose, density)
+    return Scene(spec.compile(), np.zeros(0), len(hand_meshes))
+
+
+def _select_object(local: list[np.ndarray], pose: tuple[np.ndarray, np.ndarray] | None,
+                   hand_world: list[np.ndarray]) -> list[np.ndarray]:
+    """The object's pieces within reach of the hands (all of them when none is: the object
+    then falls freely whatever its pieces are, but a body needs one geom)."""
+    cloud = np.concatenate(hand_world) if hand_world else np.zeros((0, 3))
+    keep = _near(_to_world(local, pose), cloud, C.HOLD_REACH)
+    chosen = [p for p, k in zip(local, keep, strict=True) if k]
+    return chosen or local[:1]
+
+
+def hand_scene(hands: list[PosedHand], obj: trimesh.Trimesh,
+               obj_pose: tuple[np.ndarray, np.ndarray] | None = None,
+               up: tuple[float, float, float] = C.UP,
+               density: float = C.DEFAULT_DENSITY) -> Scene:
+    """Articulated hands (world frame) and the free object, with tightened servo targets."""
+    import mujoco
+
+    spec = _spec(up)
+    local, obj_world = _object_world_pieces(obj, obj_pose)
+    hand_world = []
+    for k, hand in enumerate(hands):
+        hand_world.extend(_add_hand(spec, hand, f"h{k}", obj_world))
+    _add_object(spec, obj, _select_object(local, obj_pose, hand_world), obj_pose, density)
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    targets = np.concatenate([_tighten(model, data, hand, f"h{k}")
+                              for k, hand in enumerate(hands)]) if hands else np.zeros(0)
+    return Scene(model, targets, len(hands))
+
+
+def _add_hand(spec: mujoco.MjSpec, hand: PosedHand, name: str,
+              obj_world: np.ndarray) -> list[np.ndarray]:
+    """Bodies, hinges, servos and pieces of one posed hand; returns its kept world pieces."""
+    import mujoco
+
+    pts = hand.pieces.points(hand.vertices, hand.normals)
+    keep = _near(pts, obj_world, C.HOLD_REACH)
+    bone_of = [int(np.bincount(hand.bone_ids[i]).argmax()) for i in hand.pieces.vertex_ids]
+    bodies: dict[int, mujoco.MjsBody] = {}
+    for b in range(16):
+        parent = spec.worldbody if hand.parents[b] < 0 else bodies[hand.parents[b]]
+        offset = hand.joints[b] - (0.0 if hand.parents[b] < 0 else hand.joints[hand.parents[b]])
+        body = parent.add_body()
+        body.name = f"{name}_b{b}"
+        body.pos = offset.tolist()
+        if b > 0:  # the wrist is fixed; each finger joint turns about three world axes
+            body.explicitinertial = True
+            body.mass = C.HOLD_BONE_MASS
+            body.inertia = [1e-7, 1e-7, 1e-7]
+            body.gravcomp = 1.0
+            for a, axis in enumerate(np.eye(3)):
+                j = body.add_joint()
+                j.name = f"{name}_j{b}_{a}"
+                j.type = mujoco.mjtJoint.mjJNT_HINGE
+                j.axis = axis.tolist()
+                j.armature = C.HOLD_ARMATURE
+                act = spec.add_actuator()
+                act.name = j.name
+                act.target = j.name
+                act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+                act.set_to_position(kp=C.HOLD_FINGER_KP, kv=C.HOLD_FINGER_KV)
+                act.forcelimited = True
+                act.forcerange = [-C.HOLD_FINGER_TORQUE, C.HOLD_FINGER_TORQUE]
+        mine = [p for p, k, bb in zip(pts, keep, bone_of, strict=True) if k and bb == b]
+        _add_pieces(spec, body, mine, f"{name}_p{b}_", hand=True, origin=hand.joints[b])
+        bodies[b] = body
+    return [p for p, k in zip(pts, keep, strict=True) if k]
+
+
+def _tighten(model: mujoco.MjModel, data: mujoco.MjData, hand: PosedHand,
+             name: str) -> np.ndarray:
+    """Servo targets (45,) rad of one hand: each finger's touching bones (a vertex within
+    ``HOLD_TOUCH``) drive their closest vertex ``HOLD_TIGHTEN`` past the object's surface
+    along its outward normal (toward the object), the minimum-norm joint motion of that
+    finger's chain. The servo then presses with ``HOLD_FINGER_KP`` times what the surface
+    leaves unreached, capped at ``HOLD_FINGER_TORQUE``: a squeeze, as a hand holds."""
+    import mujoco
+
+    targets = np.zeros(45)
+    touching = hand.signed_dist <= C.HOLD_TOUCH
+    for chain in _chains(hand.parents):
+        rows, dofs, depth = [], [], []
+        for b in chain:
+            dofs.extend(model.jnt_dofadr[model.joint(f"{name}_j{b}_{a}").id] for a in range(3))
+        for b in chain:
+            on = np.flatnonzero(touching & (hand.bone_ids == b))
+            if len(on) == 0:
+                continue
+            v = on[np.argmin(hand.signed_dist[on])]
+            jacp = np.zeros((3, model.nv))
+            mujoco.mj_jac(model, data, jacp, None, hand.vertices[v],
+                          model.body(f"{name}_b{b}").id)
+            rows.append(hand.normals[v] @ jacp[:, dofs])  # outward from the hand: toward it
+            depth.append(max(float(hand.signed_dist[v]), 0.0) + C.HOLD_TIGHTEN)
+        if rows:
+            J = np.asarray(rows)
+            dq = J.T @ np.linalg.solve(J @ J.T + 1e-9 * np.eye(len(J)), np.asarray(depth))
+            for i, b in enumerate(chain):
+                targets[(b - 1) * 3:(b - 1) * 3 + 3] = dq[3 * i:3 * i + 3]
+    return targets
+
+
+def _chains(parents: tuple[int, ...]) -> list[list[int]]:
+    """Finger chains (bone ids from the knuckle out) of a 16-joint hand."""
+    roots = [b for b in range(16) if parents[b] == 0]
+    out = []
+    for r in roots:
+        chain, b = [r], r
+        while True:
+            kids = [c for c in range(16) if parents[c] == b]
+            if not kids:
+                break
+            b = kids[0]
+            chain.append(b)
+        out.append(chain)
+    return out
+
+
+def _matrix_to_wxyz(rot: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(rot).as_quat()
+    return np.array([w, x, y, z])
+
+
+# ---------------------------------------------------------------- simulation
+def _diverged(model: mujoco.MjModel, data: mujoco.MjData) -> bool:
+    import mujoco
+
+    qv = data.qvel[_object_dofs(model)[:3]]
+    return (not np.isfinite(data.qpos).all() or np.abs(qv).max() > C.SIM_MAX_SPEED
+            or data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0)
+
+
+def _step(model: mujoco.MjModel, data: mujoco.MjData, n: int) -> bool:
+    """n steps; False when the run diverged."""
+    import mujoco
+
+    for _ in range(n):
+        mujoco.mj_step(model, data)
+        if _diverged(model, data):
+            return False
+    mujoco.mj_kinematics(model, data)  # mj_step leaves xipos at the pre-integration positions
+    return True
+
+
+def _pose_of(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+    b = model.body("object").id
+    return data.xipos[b].copy(), data.xquat[b].copy()
+
+
+def _angle(q0: np.ndarray, q1: np.ndarray) -> float:
+    """Angle (degrees) between two unit quaternions (w, x, y, z)."""
+    c = min(1.0, abs(float(np.dot(q0, q1))))
+    return float(np.degrees(2.0 * np.arccos(c)))
+
+
+def _gravity(direction: str | None, up: np.ndarray) -> np.ndarray:
+    if direction is None:
+        return -C.GRAVITY * up
+    axis = np.eye(3)["xyz".index(direction[1])]
+    return C.GRAVITY * (1.0 if direction[0] == "+" else -1.0) * axis
+
+
+def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
+         directions: tuple[str | None, ...] = (None,),
+         friction: float = C.SIM_FRICTION) -> list[HoldResult]:
+    """The hold test of a compiled scene: settle once, then one hold per gravity direction
+    (None: the world's, ``-g up``; else an axis such as "+x", the direction gravity pulls).
+    ``friction``: sliding friction of every geom for this run."""
+    import mujoco
+
+    model = scene.model
+    saved = model.geom_friction[:, 0].copy()
+    model.geom_friction[:, 0] = friction
+    try:
+        data = mujoco.MjData(model)
+        model.opt.gravity[:] = 0.0
+        mujoco.mj_forward(model, data)
+        start, _ = _pose_of(model, data)
+        if not _settle(model, data, scene.targets):
+            return [_failed(np.nan) for _ in directions]
+        p0, q0 = _pose_of(model, data)
+        settle = float(np.linalg.norm(p0 - start))
+        out = []
+        for d in directions:
+            run = mujoco.MjData(model)
+            mujoco.mj_copyData(run, model, data)
+            model.opt.gravity[:] = _gravity(d, np.asarray(up, np.float64))
+            if not _step(model, run, int(round(C.SIM_HOLD_SECONDS / C.SIM_DT))):
+                out.append(_failed(settle))
+                continue
+            p1, q1 = _pose_of(model, run)
+            disp, rot = float(np.linalg.norm(p1 - p0)), _angle(q0, q1)
+            ok = settle <= C.HOLD_SETTLE_FAIL and disp < C.HOLD_DISP and rot < C.HOLD_ROT
+            out.append(HoldResult(settle, disp, rot, bool(ok), False))
+        return out
+    finally:
+        model.geom_friction[:, 0] = saved
+        model.opt.gravity[:] = -C.GRAVITY * np.asarray(up, np.float64)
+
+
+def _settle(model: mujoco.MjModel, data: mujoco.MjData, targets: np.ndarray) -> bool:
+    """Settle without gravity, the servo targets ramping from the frame's pose to the
+    tightened one over ``HOLD_RAMP_SECONDS`` (a step would strike the object); False when
+    the run diverged."""
+    n = int(round(C.HOLD_SETTLE_SECONDS / C.SIM_DT))
+    ramp = max(1, int(round(C.HOLD_RAMP_SECONDS / C.SIM_DT)))
+    dofs = _object_dofs(model)
+    saved = model.dof_damping[dofs].copy()
+    model.dof_damping[dofs] = np.repeat(C.HOLD_SETTLE_DAMPING, 3)
+    try:
+        for k in range(n):
+            data.ctrl[:] = targets * min(1.0, (k + 1) / ramp)
+            if not _step(model, data, 1):
+                return False
+    finally:
+        model.dof_damping[dofs] = saved
+    data.qvel[dofs] = 0.0  # the hold starts from rest
+    return True
+
+
+def _object_dofs(model: mujoco.MjModel) -> np.ndarray:
+    """The object's six free-joint dof indices (translation first)."""
+    adr = model.jnt_dofadr[model.body("object").jntadr[0]]
+    return np.arange(adr, adr + 6)
+
+
+def _failed(settle: float) -> HoldResult:
+    return HoldResult(settle, C.HOLD_DISP_CAP, 180.0, False, True)
+
+
+def support(scene: Scene, up: tuple[float, float, float] = C.UP) -> SupportResult:
+    """GRIP supp. 11: the object from rest under gravity, servos holding the frame's pose
+    (no tightening), ``SIM_PAPER_STEPS`` steps; stable when it moves < ``SIM_STABLE_DISP``."""
+    import mujoco
+
+    model = scene.model
+    model.opt.gravity[:] = -C.GRAVITY * np.asarray(up, np.float64)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    start, _ = _pose_of(model, data)
+    if not _step(model, data, C.SIM_PAPER_STEPS):
+        return SupportResult(float("nan"), False, True)
+    disp = float(np.linalg.norm(_pose_of(model, data)[0] - start))
+    return SupportResult(disp, disp < C.SIM_STABLE_DISP, False)
+
+
+def static_hold(hand_meshes: list[trimesh.Trimesh], obj: trimesh.Trimesh,
+              obj_pose: tuple[np.ndarray, np.ndarray] | None = None,
+              up: tuple[float, float, float] = C.UP,
+              density: float = C.DEFAULT_DENSITY) -> HoldResult:
+    """The hold test against static hands (any closed meshes, world frame; no squeeze):
+    settle, then 1 s under gravity ``-g up``. ``obj`` in its own frame, placed by
+    ``obj_pose`` = (R, t), world = R @ local + t. Never raises on a diverging simulation."""
+    return hold(static_scene(hand_meshes, obj, obj_pose, up, density), up)[0]
