@@ -77,5 +77,6 @@ def test_round_trip_through_arrays():
     pieces = surface_pieces(bowl.vertices, bowl.faces)
     back = SurfacePieces.from_arrays(pieces.to_arrays())
     assert len(back) == len(pieces)
-    assert all(np.array_equal(a, b) for a, b in zip(back.vertex_ids, pieces.vertex_ids))
+    assert all(np.array_equal(a, b) for a, b in zip(back.vertex_ids, pieces.vertex_ids,
+                                                          strict=True))
     assert np.array_equal(back.error, pieces.error)
