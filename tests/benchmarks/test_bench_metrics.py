@@ -184,3 +184,27 @@ def test_bench_hand_pieces(benchmark):
         return physics.hand_convex_pieces(hand)
 
     benchmark(run)
+
+
+def test_bench_surface_pieces_bowl(benchmark):
+    """Bounded-error pieces (geometry.pieces) of a hemispherical bowl, uncached."""
+    from grip_bench.geometry.pieces import surface_pieces
+    from tests.unit.test_geometry_pieces import bowl_mesh
+
+    bowl = bowl_mesh()
+    pieces = benchmark.pedantic(surface_pieces, (bowl.vertices, bowl.faces), rounds=2)
+    benchmark.extra_info["n_pieces"] = len(pieces)
+    benchmark.extra_info["max_error_mm"] = float(pieces.error.max() * 1e3)
+    print(f"\nbowl: {len(pieces)} pieces, max outward error {pieces.error.max() * 1e3:.3f} mm")
+
+
+def test_bench_static_hold_ball_in_bowl(benchmark):
+    """One experimental hold test (metrics.hold): compile + 0.2 s settle + 1 s hold."""
+    from grip_bench.metrics import hold
+    from tests.unit.test_geometry_pieces import bowl_mesh
+
+    bowl, ball = bowl_mesh(), trimesh.creation.icosphere(3, radius=0.02)
+    pose = (np.eye(3), np.array([0.0, -0.045 + 0.02 + 1e-4, 0.0]))
+    hold.object_pieces(ball)  # cached after the first call, as in a run
+    r = benchmark.pedantic(hold.static_hold, ([bowl], ball, pose), rounds=3)
+    benchmark.extra_info["displacement_mm"] = r.displacement * 1e3
