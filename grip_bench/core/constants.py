@@ -106,6 +106,7 @@ SIM_SOLREF = (0.01, 1.0)  # s, damping ratio; 10 ms >= 2 SIM_DT (stable), critic
 SIM_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)  # impedance ramps to 0.99 within 1 mm of penetration
 SIM_IMPRATIO = 10.0  # elliptic cones: friction stiffer than normal force, less creep in a hold
 SIM_MAX_SPEED = 50.0  # m/s; 1 s of free fall reaches 9.8 m/s, anything far beyond has diverged
+SIM_DISP_CAP = 0.1  # m; a diverged run enters displacement means as this, never dropped
 SIM_HAND_PIECE_POINTS = 120  # vertices per convex hand piece (bones are split into clusters)
 SIM_CONTACT_MARGIN = (
     0.001  # m; skin compliance: contacts act within 1 mm (see physics._contact_params)

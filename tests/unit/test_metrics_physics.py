@@ -105,3 +105,21 @@ def test_convex_mesh_is_one_piece_and_decomposition_is_cached():
     torus = trimesh.creation.torus(0.04, 0.012)
     pieces = convex_decomposition(torus)
     assert len(pieces) > 3 and convex_decomposition(torus) is pieces
+
+
+def test_diverged_runs_count_as_the_cap_never_dropped(monkeypatch):
+    """A diverged simulation is unstable and enters displacement means as SIM_DISP_CAP."""
+    from types import SimpleNamespace
+
+    from grip_bench.metrics import evaluate
+    from grip_bench.metrics.physics import StabilityResult
+
+    results = {0: StabilityResult(0.0005, True, False), 2: StabilityResult(float("nan"), False,
+                                                                           True)}
+    monkeypatch.setattr(evaluate, "simulate_frame", lambda pair, t, protocol: results[t])
+    pair = SimpleNamespace(grasp=lambda side: np.array([True, False, True]),
+                           options=SimpleNamespace(max_physics_frames=8))
+    disp = evaluate._sim(pair, "right", "paper", "displacement")
+    stable = evaluate._sim(pair, "right", "paper", "stable")
+    assert disp.summary() == (pytest.approx((0.0005 + C.SIM_DISP_CAP) / 2), 2)
+    assert stable.summary() == (pytest.approx(0.5), 2)
