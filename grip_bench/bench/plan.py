@@ -65,6 +65,9 @@ def run_settings(profile: dict, where: str | os.PathLike) -> dict:
             raise InputError(f"[run] {key} is too small: {s[key]}", where=f"{where}: run.{key}")
     for label in s["perturbations"]:
         parse_perturbation(label)
+    if s.get("averaging", "sequence") not in ("sequence", "pooled"):  # optional key
+        raise InputError("[run] averaging must be 'sequence' or 'pooled'",
+                         where=f"{where}: run.averaging")
     return s
 
 
@@ -97,7 +100,8 @@ class RunConfig:
         """What ``report`` needs to re-render (saved in the manifest)."""
         s = self.settings
         return {"bootstrap_seed": s["bootstrap_seed"], "bootstrap_n": s["bootstrap_n"],
-                "figure_methods": list(s["figure_methods"]), "split": MAIN_SPLIT}
+                "figure_methods": list(s["figure_methods"]), "split": MAIN_SPLIT,
+                "averaging": s.get("averaging", "sequence")}
 
 
 def parse_perturbation(label: str) -> tuple[str, float]:

@@ -14,15 +14,18 @@ count (otherwise: an error naming the file, and nothing is written).
 Per sequence and hand, both hands are posed with the ground truth's hand model and
 measured against the object in its own frame. Frame masks:
   all    every frame
-  grasp  frames where the ground-truth hand is within 4.5 mm of the object (GRAB's
-         contact threshold); CC uses the ground-truth vertices within 2 mm
-Physics runs MuJoCo on at most --max-physics-frames evenly spaced grasp frames per
-sequence and hand (both hands in the scene where both grasp). A metric that cannot be
-computed (e.g. a hand with no grasp frames) is nan with n_frames 0, never 0.
+  held   frames where the object is lifted (lowest point >= 5 mm above its height at
+         frame 0) and the ground-truth thumb and another finger are within 2 mm of it, 5
+         frames trimmed at each end of a hold; CC, contact drift and CDev use the
+         ground-truth vertices within 2 mm; the contact ratio counts a hand within 4.5 mm
+         (GRAB's contact threshold), its strict variant the thumb and a finger within 2 mm
+Physics runs MuJoCo on at most --max-physics-frames held frames per sequence and hand,
+drawn with a fixed seed (both hands in the scene where both hold). A metric that cannot
+be computed (e.g. a hand with no held frames) is nan with n_frames 0, never 0.
 
 Writes OUT/results.csv (method, dataset, split, perturbation, sequence, object, hand,
 metric, value, unit, n_frames; values in report units), OUT/frames.csv with --per-frame
-(plus frame; jitter_err has no per-frame rows), and OUT/evaluation.json (options, GT
+(plus frame), and OUT/evaluation.json (options, GT
 dataset hash, failure counts, wall time)."""
 
 
@@ -30,7 +33,7 @@ def _metrics_epilog() -> str:
     from ..metrics.registry import METRICS
 
     lines = ["metrics (id, unit, frames: description):"]
-    lines += [f"  {m.id:<14} {m.unit:<5} {m.frame_mask:<5}  {m.description}" for m in METRICS]
+    lines += [f"  {m.id:<20} {m.unit:<5} {m.frame_mask:<4}  {m.description}" for m in METRICS]
     lines += ["", "example:",
               "  grip-bench evaluate --pred preds/ --gt data/ --out eval/ --metrics mpjpe,mpvpe,cc"]
     return "\n".join(lines)
@@ -55,8 +58,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-physics-frames", type=int, default=EVAL_MAX_PHYSICS_FRAMES, metavar="K",
                    help=f"MuJoCo tests per sequence and hand (default {EVAL_MAX_PHYSICS_FRAMES})")
     p.add_argument("--max-iv-frames", type=int, default=0, metavar="K",
-                   help="exact intersection volumes on at most K evenly spaced grasp frames per "
-                        "sequence and hand (default 0: every grasp frame)")
+                   help="exact intersection volumes on at most K evenly spaced held frames per "
+                        "sequence and hand (default 0: every held frame)")
     p.add_argument("--up", choices=("y", "z"), default="y",
                    help="world up axis for gravity: y (SynthGRAB, default) or z (real GRAB)")
     p.add_argument("--model-path", help="MANO/SMPL-X model folder (for body_model smplx data)")

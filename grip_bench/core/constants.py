@@ -10,6 +10,10 @@ FPS = 30.0  # the suite's working rate (GRAB subsampled by 4)
 # --- Contact definitions (docs/contract.md, "Definitions") ---------------------------
 CONTACT_THRESHOLD = 0.0045  # m; GRAB's contact distance, defines grasp frames
 CC_THRESHOLD = 0.002  # m; GRIP code's contact-consistency vertex selection
+# Held frames (metrics.contact.held_mask): where the paper means "grasp frames"
+HELD_TOUCH = 0.002  # m; the GT thumb and another finger this close: the hand grips
+HELD_MIN_LIFT = 0.005  # m; the object's lowest point this far above rest: nothing else holds it
+HELD_TRIM = 5  # frames dropped at each end of a hold (the grasp forming or letting go)
 
 # --- Sensors (GRIP Sec. 3.2-3.4) --------------------------------------------
 AMBIENT_N_POINTS = 1024

@@ -9,11 +9,14 @@ are imported inside the functions that need them.
 
 from .contact import (
     contact_consistency,
+    contact_deviation,
     contact_drift,
     contact_frequency,
     contact_ratio,
     grasp_mask,
+    held_mask,
     in_contact,
+    object_lift,
 )
 from .intersection import (
     FailureCounter,
@@ -22,7 +25,7 @@ from .intersection import (
     intersection_volume_batch,
     is_closed_manifold,
 )
-from .jitter import jitter, jitter_error
+from .jitter import acceleration_error, jitter, jitter_error
 from .penetration import exact_signed_distance, penetration_depth, penetration_depth_from_sdf
 from .physics import (
     StabilityResult,
@@ -39,8 +42,10 @@ __all__ = [
     "FailureCounter",
     "MetricSpec",
     "StabilityResult",
+    "acceleration_error",
     "cap_boundary_loops",
     "contact_consistency",
+    "contact_deviation",
     "contact_drift",
     "contact_frequency",
     "contact_ratio",
@@ -48,6 +53,7 @@ __all__ = [
     "exact_signed_distance",
     "grasp_mask",
     "hand_convex_pieces",
+    "held_mask",
     "in_contact",
     "intersection_volume",
     "intersection_volume_batch",
@@ -56,6 +62,7 @@ __all__ = [
     "jitter_error",
     "mpjpe",
     "mpvpe",
+    "object_lift",
     "penetration_depth",
     "penetration_depth_from_sdf",
     "stability",

@@ -28,6 +28,69 @@ def grasp_mask(gt_signed_dist: np.ndarray, threshold: float = C.CONTACT_THRESHOL
     return in_contact(gt_signed_dist, threshold).any(axis=-1)
 
 
+# Finger of each skinning bone (MANO joint order: wrist, index 1-3, middle 4-6, pinky 7-9,
+# ring 10-12, thumb 13-15): -1 palm, 0 thumb, 1 index, 2 middle, 3 ring, 4 pinky.
+BONE_FINGER = np.array([-1, 1, 1, 1, 2, 2, 2, 4, 4, 4, 3, 3, 3, 0, 0, 0])
+
+
+def finger_ids(bone_ids: np.ndarray) -> np.ndarray:
+    """Finger code of each vertex (V,) from its skinning bone (V,) (see ``BONE_FINGER``)."""
+    return BONE_FINGER[np.asarray(bone_ids, dtype=np.int64)]
+
+
+def object_lift(local_vertices: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                up: np.ndarray) -> np.ndarray:
+    """Height of the object's lowest point above its height at frame 0, per frame (T,) m.
+
+    local_vertices (N, 3) in the object's frame (its hull's vertices suffice); rotations
+    (T, 3, 3) and translations (T, 3) with world = local @ R_t + t_t (GRAB's convention);
+    up (3,). GRAB sequences start with the object resting on the table, so frame 0 is the
+    resting height.
+    """
+    u = np.asarray(up, dtype=np.float64)
+    heights = np.einsum("nj,tjk,k->tn", np.asarray(local_vertices, np.float64),
+                        np.asarray(rotations, np.float64), u)
+    low = heights.min(axis=1) + np.asarray(translations, np.float64) @ u
+    return low - low[0] if len(low) else low
+
+
+def trim_runs(mask: np.ndarray, trim: int) -> np.ndarray:
+    """``mask`` (T,) bool with ``trim`` frames removed at each end of every run of True."""
+    m = np.asarray(mask, dtype=bool)
+    out = np.zeros_like(m)
+    edges = np.flatnonzero(np.diff(np.r_[0, m.astype(np.int8), 0]))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        if stop - start > 2 * trim:
+            out[start + trim:stop - trim] = True
+    return out
+
+
+def held_mask(gt_signed_dist: np.ndarray, finger: np.ndarray, lift: np.ndarray,
+              touch: float = C.HELD_TOUCH, min_lift: float = C.HELD_MIN_LIFT,
+              trim: int = C.HELD_TRIM) -> np.ndarray:
+    """Held frames (T,) bool: the object is lifted and the ground truth grips it.
+
+    A frame is held when the object's lowest point is at least ``min_lift`` above its
+    resting height (``lift`` (T,) m, from :func:`object_lift`) and the ground-truth thumb and
+    at least one other finger have a vertex within ``touch`` (inside counts); each run of
+    such frames then loses ``trim`` frames at each end (a grasp being formed or released).
+    gt_signed_dist (T, V) m; finger (V,) codes from :func:`finger_ids`.
+    """
+    near = in_contact(gt_signed_dist, touch)
+    finger = np.asarray(finger)
+    grip = near[:, finger == 0].any(axis=-1) & near[:, finger > 0].any(axis=-1)
+    return trim_runs(grip & (np.asarray(lift) >= min_lift), trim)
+
+
+def strict_contact(pred_signed_dist: np.ndarray, finger: np.ndarray,
+                   touch: float = C.HELD_TOUCH) -> np.ndarray:
+    """Frames (T,) bool where the thumb and at least one other finger are within ``touch``
+    (inside counts): the strict contact ratio's per-frame test. pred_signed_dist (T, V) m."""
+    near = in_contact(pred_signed_dist, touch)
+    finger = np.asarray(finger)
+    return near[:, finger == 0].any(axis=-1) & near[:, finger > 0].any(axis=-1)
+
+
 def contact_ratio(
     pred_signed_dist: np.ndarray, mask: np.ndarray, threshold: float = C.CONTACT_THRESHOLD
 ) -> float:
@@ -62,35 +125,58 @@ def contact_consistency(
 
 
 def contact_drift(
-    pred_signed_dist: np.ndarray,
-    closest_obj_points_local: np.ndarray,
+    pred_local: np.ndarray,
+    gt_local: np.ndarray,
+    gt_signed_dist: np.ndarray,
     mask: np.ndarray,
-    threshold: float = C.CONTACT_THRESHOLD,
+    threshold: float = C.CC_THRESHOLD,
 ) -> np.ndarray:
-    """Per-frame sliding of the predicted contacts over the object surface.
+    """Per-frame drift of the ground truth's contact vertices relative to the object
+    (ARCTIC's motion deviation, MDev, on contact vertices).
 
-    For frames t-1, t that are both grasp frames, take the hand vertices the *prediction* has
-    in contact in both (the metric measures the method's own sliding, so its own distances
-    decide contact) and average how far their closest object points moved, expressed in the
-    object's own frame. A rigidly held grasp scores 0 whatever the object does in the world.
+    For frames t-1, t that are both masked, take the vertices the *ground truth* has within
+    ``threshold`` in both frames (the same vertices for every method, so a method that never
+    touches is measured too) and average ``|(p_t - p_{t-1}) - (g_t - g_{t-1})|``, with p, g
+    the predicted and ground-truth vertex positions in the object's own frame: how much
+    more (or differently) the method's contact region moves over the object than the ground
+    truth's does. Ground truth against itself is exactly 0, a rigid offset of the hand in the
+    object frame is 0, a hand sliding by s per frame over a still ground truth scores s.
 
-    pred_signed_dist: (T, V) m; closest_obj_points_local: (T, V, 3) m in the object frame;
+    pred_local, gt_local: (T, V, 3) m in the object frame; gt_signed_dist: (T, V) m;
     mask: (T,) bool -> (T,) m; frame 0 and frames without such vertices are NaN.
     """
-    d = np.asarray(pred_signed_dist)
-    c = np.asarray(closest_obj_points_local, dtype=np.float64)
+    p = np.asarray(pred_local, dtype=np.float64)
+    g = np.asarray(gt_local, dtype=np.float64)
     mask = np.asarray(mask, dtype=bool)
-    out = np.full(d.shape[0], np.nan)
-    if d.shape[0] < 2:
+    out = np.full(p.shape[0], np.nan)
+    if p.shape[0] < 2:
         return out
-    touch = in_contact(d, threshold)
+    touch = in_contact(gt_signed_dist, threshold)
     sel = touch[1:] & touch[:-1] & (mask[1:] & mask[:-1])[:, None]  # (T-1, V)
-    move = np.linalg.norm(c[1:] - c[:-1], axis=-1)
+    dev = np.linalg.norm((p[1:] - p[:-1]) - (g[1:] - g[:-1]), axis=-1)
     n = sel.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        per = np.where(sel, move, 0.0).sum(axis=-1) / n
+        per = np.where(sel, dev, 0.0).sum(axis=-1) / n
     out[1:] = np.where(n > 0, per, np.nan)
     return out
+
+
+def contact_deviation(
+    pred_signed_dist: np.ndarray, gt_signed_dist: np.ndarray,
+    threshold: float = C.CC_THRESHOLD,
+) -> np.ndarray:
+    """Per-frame contact deviation (ARCTIC's CDev): the mean distance to the object's surface
+    of the predicted vertices whose ground-truth counterparts are within ``threshold``.
+
+    pred_signed_dist, gt_signed_dist: (T, V) m -> (T,) m (absolute distances: a vertex
+    inside the object deviates as much as one outside); NaN where the ground truth has no
+    such vertex.
+    """
+    sel = in_contact(gt_signed_dist, threshold)
+    n = sel.sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(sel, np.abs(pred_signed_dist), 0.0).sum(axis=-1) / n
+    return np.where(n > 0, out, np.nan)
 
 
 def contact_frequency(

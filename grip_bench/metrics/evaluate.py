@@ -10,19 +10,23 @@ The metric functions of this package are pure; this module feeds them. Per seque
    get signed distances from the object library's cached field; every distance below
    ``constants.EVAL_EXACT_BAND`` is recomputed exactly, so all threshold decisions
    (4.5 mm contact, 2 mm CC, inside) use exact distances.
-3. Ground-truth distances define the masks: a hand's grasp frames are those where its GT mesh
-   is within 4.5 mm of the object; CC vertices are GT vertices within 2 mm.
+3. Ground-truth distances define the masks: a hand's **held** frames (``contact.held_mask``:
+   object lifted >= 5 mm above rest, the GT thumb and another finger within 2 mm, 5 frames
+   trimmed at each end of a hold) are where contact, penetration and physics metrics are
+   measured; CC and drift vertices are GT vertices within 2 mm. The older grasp mask (any GT
+   vertex within 4.5 mm) remains for the heatmap figures.
 4. Each metric yields per-frame SI values on its frame mask; the sequence value is their mean
    over frames that could be computed (``n_frames``), converted to the report unit by the
    registry. A metric that cannot be computed is NaN with ``n_frames = 0``, never 0.
 
-Contact drift is measured relative to the ground truth (the closest object points of the
-prediction's contact vertices, minus those of the same GT vertices, followed over frames):
-a method sliding exactly as the ground truth does scores 0, so GT against itself is 0.
+Contact drift follows the ground truth's contact vertices (the same for every method) in the
+object's frame (ARCTIC's MDev on contacts): GT against itself is 0, and a method that never
+touches is measured on the same vertices, so it cannot score 0 by not touching.
 
-Physics (MuJoCo) runs on at most ``EvalOptions.max_physics_frames`` evenly spaced grasp
-frames per sequence and hand (each test costs ~30-50 ms); in frames where both GT hands
-grasp, both predicted hands are in the scene and the test is shared by the two hands.
+Physics (MuJoCo) runs on at most ``EvalOptions.max_physics_frames`` held frames per sequence
+and hand, drawn with a seed (``EvalOptions.physics_seed``, the sequence and the hand); in
+frames where both GT hands hold, both predicted hands are in the scene and the test is
+shared by the two hands.
 """
 
 from __future__ import annotations
@@ -38,9 +42,19 @@ from ..core import constants as C
 from ..core.errors import InputError
 from ..core.frames import SIDES
 from ..results.schema import ResultRow
-from .contact import contact_consistency, contact_drift, grasp_mask, in_contact
+from .contact import (
+    contact_consistency,
+    contact_deviation,
+    contact_drift,
+    finger_ids,
+    grasp_mask,
+    held_mask,
+    in_contact,
+    object_lift,
+    strict_contact,
+)
 from .intersection import FailureCounter, intersection_volume_batch
-from .jitter import acceleration, jitter, jitter_error
+from .jitter import acceleration, acceleration_error, jitter
 from .penetration import penetration_depth_from_sdf
 from .pose import mpjpe, mpvpe
 from .registry import METRICS, metric
@@ -65,7 +79,8 @@ class EvalOptions:
     intersection volumes per sequence and hand (evenly spaced grasp frames, 0 = every grasp
     frame; a sample of a smooth 30 fps motion); ``model_path``: MANO /
     SMPL-X models for ``body_model == "smplx"`` data; ``up``: the world's up axis for gravity
-    (SynthGRAB: y; real GRAB files are z-up: pass (0, 0, 1))."""
+    (SynthGRAB: y; real GRAB files are z-up: pass (0, 0, 1)); ``physics_seed``: draws the
+    physics frames among the held ones."""
 
     metrics: tuple[str, ...] | None = None
     max_physics_frames: int = C.EVAL_MAX_PHYSICS_FRAMES
@@ -75,6 +90,7 @@ class EvalOptions:
     model_path: str | None = None
     sides: tuple[str, ...] = SIDES
     up: tuple[float, float, float] = C.UP
+    physics_seed: int = 0
 
     def metric_ids(self, metrics: Iterable[str] | None = None) -> list[str]:
         """Validated metric ids in registry order; ``metrics`` overrides ``self.metrics``."""
@@ -197,6 +213,27 @@ class SequencePair:
             self._grasp[side] = grasp_mask(self.track("gt", side).sd, C.CONTACT_THRESHOLD)
         return self._grasp[side]
 
+    def finger(self, side: str) -> np.ndarray:
+        """Finger code of each vertex (V,) of ``side`` (``contact.finger_ids``)."""
+        return finger_ids(_bone_ids(self.poser, side, self.track("gt", side).sd.shape[-1]))
+
+    @cached_property
+    def lift(self) -> np.ndarray:
+        """Height (T,) m of the object's lowest point above its resting height (frame 0)."""
+        import trimesh
+
+        hull = np.asarray(trimesh.convex.convex_hull(self.mesh).vertices)
+        return object_lift(hull, self.gt.object_rotations(),
+                           np.asarray(self.gt.object["transl"], dtype=np.float64),
+                           np.asarray(self.options.up, dtype=np.float64))
+
+    def held(self, side: str) -> np.ndarray:
+        """Held frames (T,) bool of ``side`` (``contact.held_mask`` on the ground truth)."""
+        key = "held:" + side
+        if key not in self._grasp:
+            self._grasp[key] = held_mask(self.track("gt", side).sd, self.finger(side), self.lift)
+        return self._grasp[key]
+
     @cached_property
     def n_frames(self) -> int:
         return self.gt.n_frames
@@ -207,8 +244,8 @@ def _all_frames(pair: SequencePair, values: np.ndarray) -> Measured:
     return Measured(np.arange(pair.n_frames), np.asarray(values, dtype=np.float64))
 
 
-def _on_grasp(pair: SequencePair, side: str, values: np.ndarray) -> Measured:
-    idx = np.flatnonzero(pair.grasp(side))
+def _on_held(pair: SequencePair, side: str, values: np.ndarray) -> Measured:
+    idx = np.flatnonzero(pair.held(side))
     return Measured(idx, np.asarray(values, dtype=np.float64)[idx])
 
 
@@ -224,44 +261,40 @@ def m_mpvpe(pair: SequencePair, side: str) -> Measured:
     return _all_frames(pair, mpvpe(pair.track("pred", side).verts, pair.track("gt", side).verts))
 
 
-@metric("cc", "Contact consistency", "mm", 1e3, False, "grasp", 1,
+@metric("cc", "Contact consistency", "mm", 1e3, False, "held", 2,
         "vertex error on hand vertices within 2 mm of the object in ground truth")
 def m_cc(pair: SequencePair, side: str) -> Measured:
     p, g = pair.track("pred", side), pair.track("gt", side)
-    return _on_grasp(pair, side, contact_consistency(p.verts, g.verts, g.sd, C.CC_THRESHOLD))
+    return _on_held(pair, side, contact_consistency(p.verts, g.verts, g.sd, C.CC_THRESHOLD))
 
 
-@metric("contact_drift", "Contact drift", "mm", 1e3, False, "grasp", 1,
-        "per-frame sliding of the method's contact points in the object's frame, "
-        "beyond the ground truth's (GT vs itself = 0)")
+@metric("contact_drift", "Contact drift", "mm", 1e3, False, "held", 2,
+        "per-frame |(p_t - p_t-1) - (g_t - g_t-1)| in the object's frame over the GT's vertices "
+        "within 2 mm in both frames (ARCTIC MDev on contacts; the same vertices for every method)")
 def m_contact_drift(pair: SequencePair, side: str) -> Measured:
-    """Sliding of the prediction's contacts beyond the ground truth's, in the object frame.
-
-    For the vertices the prediction has in contact (its own distances), the exact closest
-    object points of the predicted and of the GT vertex are taken; the metric follows their
-    difference from frame to frame, so a method sliding exactly as the ground truth does (the
-    ground truth itself, or a rigid hold of a rigid GT hold) scores exactly 0.
-    """
     p, g = pair.track("pred", side), pair.track("gt", side)
-    mask = pair.grasp(side)
-    sel = in_contact(p.sd, C.CONTACT_THRESHOLD) & mask[:, None]
-    rel = np.zeros(p.local.shape)
-    if sel.any():
-        cp_pred = pair.field.closest_points(p.local[sel])[0]
-        cp_gt = pair.field.closest_points(g.local[sel])[0]
-        rel[sel] = cp_pred - cp_gt
-    return _on_grasp(pair, side, contact_drift(p.sd, rel, mask, C.CONTACT_THRESHOLD))
+    return _on_held(pair, side, contact_drift(p.local, g.local, g.sd, pair.held(side),
+                                              C.CC_THRESHOLD))
 
 
-@metric("iv", "Intersection volume", "cm3", 1e6, False, "grasp", 1,
+@metric("cdev", "Contact deviation", "mm", 1e3, False, "held", 1,
+        "mean distance to the object's surface of the predicted vertices whose GT vertices are "
+        "within 2 mm (ARCTIC CDev)")
+def m_cdev(pair: SequencePair, side: str) -> Measured:
+    p, g = pair.track("pred", side), pair.track("gt", side)
+    return _on_held(pair, side, contact_deviation(p.sd, g.sd, C.CC_THRESHOLD))
+
+
+@metric("iv", "Intersection volume", "cm3", 1e6, False, "held", 2,
         "exact vol(hand & object) with manifold3d; NaN plus a count on failure")
 def m_iv(pair: SequencePair, side: str) -> Measured:
-    """Exact intersection volume on grasp frames (at most ``max_iv_frames`` evenly spaced
+    """Exact intersection volume on held frames (at most ``max_iv_frames`` evenly spaced
     ones when that is > 0); a hand with no vertex inside is 0 without a
     boolean (early-out; see ``intersection_volumes``)."""
     p = pair.track("pred", side)
     k = pair.options.max_iv_frames
-    idx = physics_frames(pair.grasp(side), k) if k > 0 else np.flatnonzero(pair.grasp(side))
+    held = pair.held(side)
+    idx = evenly_spaced(held, k) if k > 0 else np.flatnonzero(held)
     faces = pair.poser.faces(side)
     return Measured(
         idx, intersection_volumes(p.local[idx], p.sd[idx], faces, pair.mesh, pair.failures)
@@ -285,26 +318,47 @@ def intersection_volumes(local: np.ndarray, sd: np.ndarray, faces: np.ndarray,
     return out
 
 
-@metric("pen_depth", "Penetration depth", "mm", 1e3, False, "grasp", 1,
+@metric("pen_depth", "Penetration depth", "mm", 1e3, False, "held", 2,
         "largest depth of a hand vertex inside the object (exact signed distance)")
 def m_pen_depth(pair: SequencePair, side: str) -> Measured:
-    return _on_grasp(pair, side, penetration_depth_from_sdf(pair.track("pred", side).sd))
+    return _on_held(pair, side, penetration_depth_from_sdf(pair.track("pred", side).sd))
 
 
-@metric("contact_ratio", "Contact ratio", "%", 1e2, True, "grasp", 1,
-        "share of grasp frames where the hand is within 4.5 mm of the object or inside")
+@metric("contact_ratio", "Contact ratio", "%", 1e2, True, "held", 2,
+        "share of held frames where the hand is within 4.5 mm of the object or inside (GRIP)")
 def m_contact_ratio(pair: SequencePair, side: str) -> Measured:
     touch = grasp_mask(pair.track("pred", side).sd, C.CONTACT_THRESHOLD)
-    return _on_grasp(pair, side, touch.astype(np.float64))
+    return _on_held(pair, side, touch.astype(np.float64))
+
+
+@metric("contact_ratio_strict", "Contact ratio (strict)", "%", 1e2, True, "held", 1,
+        "share of held frames where the thumb and another finger are within 2 mm or inside")
+def m_contact_ratio_strict(pair: SequencePair, side: str) -> Measured:
+    grip = strict_contact(pair.track("pred", side).sd, pair.finger(side), C.HELD_TOUCH)
+    return _on_held(pair, side, grip.astype(np.float64))
 
 
 # ------------------------------------------------------------------ physics
-def physics_frames(grasp: np.ndarray, k: int) -> np.ndarray:
-    """At most ``k`` evenly spaced frame indices among the True entries of ``grasp`` (T,)."""
-    idx = np.flatnonzero(grasp)
+def evenly_spaced(mask: np.ndarray, k: int) -> np.ndarray:
+    """At most ``k`` evenly spaced frame indices among the True entries of ``mask`` (T,)."""
+    idx = np.flatnonzero(mask)
     if len(idx) <= k:
         return idx
     return idx[np.unique(np.round(np.linspace(0, len(idx) - 1, k)).astype(int))]
+
+
+def physics_frames(pair: SequencePair, side: str) -> np.ndarray:
+    """At most ``max_physics_frames`` held frames of ``side``, drawn without replacement with
+    a generator seeded by ``physics_seed``, the sequence name and the hand (sorted)."""
+    import zlib
+
+    idx = np.flatnonzero(pair.held(side))
+    k = pair.options.max_physics_frames
+    if len(idx) <= k:
+        return idx
+    salt = zlib.crc32(f"{pair.gt.name}|{side}".encode())
+    rng = np.random.default_rng([pair.options.physics_seed, salt])
+    return np.sort(rng.choice(idx, size=k, replace=False))
 
 
 def _hand_mesh(pair: SequencePair, side: str, t: int) -> trimesh.Trimesh:
@@ -329,13 +383,13 @@ def _bone_ids(poser: ProceduralPoser | MANOPoser, side: str, n_verts: int) -> np
 
 
 def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult:
-    """MuJoCo stability of frame ``t`` with every predicted hand that grasps there (GT mask),
+    """MuJoCo stability of frame ``t`` with every predicted hand held there (GT mask),
     cached per (frame, protocol) so a bimanual frame is simulated once for both hands."""
     from .physics import convex_decomposition, stability
 
     key = (t, protocol)
     if key not in pair._sims:
-        sides = [s for s in pair.options.sides if pair.grasp(s)[t]]
+        sides = [s for s in pair.options.sides if pair.held(s)[t]]
         hands = [_hand_mesh(pair, s, t) for s in sides]
         R = pair.pred.object_rotations()[t]
         pose = (R.T, np.asarray(pair.pred.object["transl"][t], float))  # world = R^T local + t
@@ -350,7 +404,7 @@ def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult
 def _sim(pair: SequencePair, side: str, protocol: str, attr: str) -> Measured:
     """Per tested frame: ``stable`` (a diverged run is unstable) or the displacement (a
     diverged run counts as ``SIM_DISP_CAP``: the worst grasps must not vanish from a mean)."""
-    idx = physics_frames(pair.grasp(side), pair.options.max_physics_frames)
+    idx = physics_frames(pair, side)
     vals = []
     for t in idx:
         res = simulate_frame(pair, int(t), protocol)
@@ -359,25 +413,25 @@ def _sim(pair: SequencePair, side: str, protocol: str, attr: str) -> Measured:
     return Measured(idx, np.asarray(vals, dtype=np.float64))
 
 
-@metric("sim_stable", "Support test (GRIP supp. 11)", "%", 1e2, True, "grasp", 2,
+@metric("sim_stable", "Support test (GRIP supp. 11)", "%", 1e2, True, "held", 3,
         "MuJoCo, hand fixed, object free: share moving < 1 mm in 5 steps of 1/240 s (free fall "
-        "alone: 2.55 mm; diverged = unstable; evenly spaced grasp frames: [run] physics_frames "
-        "per sequence and hand, 8 by default)")
+        "alone: 2.55 mm; diverged = unstable; held frames: [run] physics_frames "
+        "per sequence and hand, 8 by default, drawn with a seed)")
 def m_sim_stable(pair: SequencePair, side: str) -> Measured:
     """Share of tested grasp frames stable under the paper protocol (a diverged run is unstable)."""
     return _sim(pair, side, "paper", "stable")
 
 
-@metric("sim_disp", "Support test displacement", "mm", 1e3, False, "grasp", 2,
+@metric("sim_disp", "Support test displacement", "mm", 1e3, False, "held", 3,
         "object displacement after the support test's 5 steps of 1/240 s (free fall: 2.55 mm; "
-        "a diverged run counts as 100 mm; [run] physics_frames grasp frames)")
+        "a diverged run counts as 100 mm; [run] physics_frames held frames)")
 def m_sim_disp(pair: SequencePair, side: str) -> Measured:
     return _sim(pair, side, "paper", "displacement")
 
 
-@metric("sim_disp_hold", "Simulated displacement (1 s hold)", "mm", 1e3, False, "grasp", 2,
+@metric("sim_disp_hold", "Simulated displacement (1 s hold)", "mm", 1e3, False, "held", 3,
         "object displacement after 1 s of simulated time, static hand (free fall: 4.9 m; a "
-        "diverged run counts as 100 mm; [run] physics_frames grasp frames)")
+        "diverged run counts as 100 mm; [run] physics_frames held frames)")
 def m_sim_disp_hold(pair: SequencePair, side: str) -> Measured:
     return _sim(pair, side, "hold", "displacement")
 
@@ -398,17 +452,13 @@ def m_jitter(pair: SequencePair, side: str) -> Measured:
     return Measured(np.arange(1, 1 + len(per)), per, value=jitter(v, pair.gt.fps))
 
 
-@metric("jitter_err", "Jitter error", "m/s2", 1.0, False, "all", 1,
-        "absolute difference between the method's jitter and ground truth")
-def m_jitter_err(pair: SequencePair, side: str) -> Measured:
-    """|jitter(pred) - jitter(GT)| of the sequence (not a mean of per-frame values, so it has
-    no frame rows)."""
-    p, g = pair.track("pred", side).verts, pair.track("gt", side).verts
-    n = max(len(p) - 2, 0)
-    return Measured(np.zeros(0, int), np.zeros(0), value=jitter_error(p, g, pair.gt.fps),
-                    n_frames=n, frame_rows=False)
-
-
+@metric("accel_err", "Acceleration error", "m/s2", 1.0, False, "all", 1,
+        "mean over frames and vertices of |a_pred - a_gt| (world frame, second differences at "
+        "the sequence's fps; ARCTIC's acceleration error)")
+def m_accel_err(pair: SequencePair, side: str) -> Measured:
+    per = acceleration_error(pair.track("pred", side).verts, pair.track("gt", side).verts,
+                             pair.gt.fps)
+    return Measured(np.arange(1, 1 + len(per)), per)
 
 
 # ------------------------------------------------------------------ rows
@@ -472,13 +522,15 @@ def evaluate_sequence(pred: Sequence, gt: Sequence, library: ObjectLibrary, *,
 
 
 def contact_stats(pair: SequencePair, side: str) -> dict[str, np.ndarray]:
-    """Figure data of one hand on its (GT) grasp frames, poolable over sequences by summing:
-    ``counts`` (V,) int64 grasp frames with each predicted vertex in contact (4.5 mm, as
+    """Figure data of one hand, poolable over sequences by summing: ``counts`` (V,) int64
+    (GT) grasp frames with each predicted vertex in contact (4.5 mm, as
     :func:`~grip_bench.metrics.contact.contact_frequency`), ``frames`` () int64 grasp frames,
-    ``depths`` (K,) float64 per-frame penetration depth of the prediction in mm."""
+    ``depths`` (K,) float64 penetration depth (mm) of the prediction on each held frame (the
+    frames ``pen_depth`` averages)."""
     sd = pair.track("pred", side).sd
     mask = pair.grasp(side)
     counts = in_contact(sd[mask], C.CONTACT_THRESHOLD).sum(axis=0, dtype=np.int64)
-    depths = METRICS.get("pen_depth").to_report(penetration_depth_from_sdf(sd[mask]))
+    held = pair.held(side)
+    depths = METRICS.get("pen_depth").to_report(penetration_depth_from_sdf(sd[held]))
     return {"counts": np.asarray(counts, np.int64).reshape(sd.shape[-1]),
             "frames": np.int64(mask.sum()), "depths": np.asarray(depths, np.float64).reshape(-1)}

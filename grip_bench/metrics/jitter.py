@@ -29,3 +29,18 @@ def jitter(vertices: np.ndarray, fps: float = C.FPS) -> float:
 def jitter_error(pred_vertices: np.ndarray, gt_vertices: np.ndarray, fps: float = C.FPS) -> float:
     """Absolute difference between the prediction's jitter and the ground truth's, m/s^2."""
     return abs(jitter(pred_vertices, fps) - jitter(gt_vertices, fps))
+
+
+def acceleration_error(pred_vertices: np.ndarray, gt_vertices: np.ndarray,
+                       fps: float = C.FPS) -> np.ndarray:
+    """Per-frame acceleration error as ARCTIC defines it: the mean over vertices of
+    ``|a_pred - a_gt|`` (not the difference of mean magnitudes, which is 0 for a wrong motion
+    of the same energy).
+
+    pred_vertices, gt_vertices: (T, V, 3) m in one frame (the world: a hand's absolute
+    motion is what jitters) -> (T-2,) m/s^2 for frames 1..T-2; empty when T < 3.
+    """
+    if np.shape(pred_vertices)[0] < 3:
+        return np.zeros(0)
+    diff = acceleration(pred_vertices, fps) - acceleration(gt_vertices, fps)
+    return np.linalg.norm(diff, axis=-1).mean(axis=-1)

@@ -19,8 +19,8 @@ from ..core.registry import Registry
 class MetricSpec:
     """Static description of one metric; values are computed in SI and multiplied by ``scale``.
 
-    ``frame_mask`` is ``"all"`` (every frame) or ``"grasp"`` (frames where the ground-truth hand
-    is within ``constants.CONTACT_THRESHOLD`` of the object).
+    ``frame_mask`` is ``"all"`` (every frame) or ``"held"`` (the ground truth holds the object
+    lifted: ``metrics.contact.held_mask``).
     """
 
     id: str
@@ -28,7 +28,7 @@ class MetricSpec:
     unit: str
     scale: float
     higher_is_better: bool
-    frame_mask: Literal["all", "grasp"]
+    frame_mask: Literal["all", "held"]
     version: int
     description: str
     # (pair: metrics.evaluate.SequencePair, side) -> metrics.evaluate.Measured, SI units
@@ -38,7 +38,7 @@ class MetricSpec:
         """One line for ``grip-bench ls metrics``."""
         arrow = "higher" if self.higher_is_better else "lower"
         return (
-            f"{self.id:<14} {self.unit:<5} {arrow:<6} frames={self.frame_mask:<5} "
+            f"{self.id:<20} {self.unit:<5} {arrow:<6} frames={self.frame_mask:<4} "
             f"v{self.version}  {self.name}: {self.description}"
         )
 
@@ -51,7 +51,7 @@ METRICS: Registry[MetricSpec] = Registry("metric")
 
 
 def metric(id: str, name: str, unit: str, scale: float, higher_is_better: bool,
-           frame_mask: Literal["all", "grasp"], version: int, description: str
+           frame_mask: Literal["all", "held"], version: int, description: str
            ) -> Callable[[Callable[[Any, str], Any]], Callable[[Any, str], Any]]:
     """Decorator registering the per-hand compute function of metric ``id`` (in definition
     order, which is the order of tables and leaderboards)."""

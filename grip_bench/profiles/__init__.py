@@ -69,6 +69,10 @@ def validate_profile(data: dict, schema: dict, where: Path) -> dict:
     return out
 
 
+# Keys added after profiles were in users' hands: a profile without them gets the default's.
+OPTIONAL_KEYS = {"run": ("averaging",)}
+
+
 def load_profile(name: str | Path = "default") -> dict:
     """``{section: {key: value}}`` of a profile, validated against the default profile's keys.
 
@@ -81,6 +85,8 @@ def load_profile(name: str | Path = "default") -> dict:
     data = validate_profile(_read(path), schema, path)
     for section, values in schema.items():
         data.setdefault(section, dict(values))
+        for key in OPTIONAL_KEYS.get(section, ()):
+            data[section].setdefault(key, values[key])
         missing = sorted(set(values) - set(data[section]))
         if missing:
             raise InputError(f"missing key(s) {missing} in [{section}]", path)

@@ -24,7 +24,7 @@ from ..core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED
 from ..core.errors import InputError
 from ..core.io import atomic_write_text
 from ..results.schema import format_float
-from ..results.stats import CI, sequence_ci
+from ..results.stats import AVERAGING_NOTES, CI, sequence_ci
 
 if TYPE_CHECKING:
     from ..core.registry import Registry
@@ -79,7 +79,8 @@ def leaderboard(results_df: pd.DataFrame,
                 metrics_registry: Registry[MetricSpec] | None = None,
                 seed: int = BOOTSTRAP_SEED, *,
                 n_boot: int = BOOTSTRAP_N, perturbation: str | None = "none",
-                hands: Mapping[str, Sequence[str]] | None = None) -> pd.DataFrame:
+                hands: Mapping[str, Sequence[str]] | None = None,
+                averaging: str = "sequence") -> pd.DataFrame:
     """Leaderboard frame: :data:`LEADERBOARD_COLUMNS` plus ``n_nan``.
 
     ``results_df`` is a validated results frame (one dataset: the leaderboard does not pool
@@ -87,7 +88,8 @@ def leaderboard(results_df: pd.DataFrame,
     default; ``None`` keeps all rows. ``hands`` maps a method to the hands it predicts
     (``MethodSpec.hands``): rows of a side it does not predict are dropped, because that
     hand is the method's input (on the clean split, the ground truth) and would score 0.
-    Rows are ordered by metric, hand, then best first.
+    Rows are ordered by metric, hand, then best first. ``averaging`` as in
+    :func:`grip_bench.results.stats.sequence_ci`; kept in ``lb.attrs["averaging"]``.
     """
     registry = metrics_registry if metrics_registry is not None else default_metric_registry()
     df = results_df if perturbation is None else \
@@ -95,18 +97,19 @@ def leaderboard(results_df: pd.DataFrame,
     df = df[~unpredicted(df, hands or {})]
     records = []
     for (method, metric, hand), rows in df.groupby(["method", "metric", "hand"], sort=True):
-        ci = sequence_ci(rows, n_boot=n_boot, seed=seed)
+        ci = sequence_ci(rows, n_boot=n_boot, seed=seed, averaging=averaging)
         records.append({"method": method, "metric": metric, "hand": hand, "value": ci.mean,
                         "ci_low": ci.lo, "ci_high": ci.hi, "unit": _unit(rows, metric, registry),
                         "higher_is_better": _direction(metric, registry),
                         "n_sequences": ci.n, "n_nan": ci.n_nan})
     lb = pd.DataFrame.from_records(records, columns=[*LEADERBOARD_COLUMNS, "n_nan"])
-    if lb.empty:
-        return lb
-    lb["_hand"] = lb["hand"].map(lambda h: _HAND_ORDER.get(h, 9))
-    lb["_rank"] = _rank_key(lb)
-    lb = lb.sort_values(["metric", "_hand", "hand", "_rank", "method"], kind="mergesort")
-    return lb.drop(columns=["_hand", "_rank"]).reset_index(drop=True)
+    if not lb.empty:
+        lb["_hand"] = lb["hand"].map(lambda h: _HAND_ORDER.get(h, 9))
+        lb["_rank"] = _rank_key(lb)
+        lb = lb.sort_values(["metric", "_hand", "hand", "_rank", "method"], kind="mergesort")
+        lb = lb.drop(columns=["_hand", "_rank"]).reset_index(drop=True)
+    lb.attrs["averaging"] = averaging
+    return lb
 
 
 # --- writers --------------------------------------------------------------------------------
@@ -171,7 +174,8 @@ def leaderboard_table(lb: pd.DataFrame,
              "– : no value (every sequence NaN, or a hand the method does not predict: "
              "single-hand models return the other hand as given).",
              "GRIP's ablation variants are compared in Tables 2 and 4 (right) and the physics "
-             "table, on those tables' metrics.")
+             "table, on those tables' metrics.",
+             AVERAGING_NOTES[lb.attrs.get("averaging", "sequence")])
     return TableData(id="leaderboard", title=title, version=2,
                      description="every method, metric and hand on the clean test runs",
                      row_header="Method", columns=tuple(columns),

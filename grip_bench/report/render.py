@@ -480,12 +480,14 @@ def render_table(
     metrics_registry: Registry[MetricSpec] | None = None,
     n_boot: int = BOOTSTRAP_N,
     seed: int = BOOTSTRAP_SEED,
+    averaging: str = "sequence",
 ) -> str:
     """Compute one table (by spec or registered id) from results frames and render it."""
     if isinstance(spec, str):
         spec = TABLES.get(spec)
     data = compute_table(spec, results, runtime, dataset=dataset,
-                         metrics_registry=metrics_registry, n_boot=n_boot, seed=seed)
+                         metrics_registry=metrics_registry, n_boot=n_boot, seed=seed,
+                         averaging=averaging)
     return render(data, fmt)
 
 
@@ -496,7 +498,8 @@ def _write_all_formats(data: TableData, out: Path, formats: Sequence[str]) -> li
 def render_all(results_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
                formats: Sequence[str] = FORMATS,
                metrics_registry: Registry[MetricSpec] | None = None,
-               n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED) -> list[Path]:
+               n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
+               averaging: str = "sequence") -> list[Path]:
     """Write every registered table in every format from ``results_dir`` into ``out_dir``.
 
     Reads ``results.csv`` (required) and ``runtime.csv`` (optional). With results from one
@@ -514,6 +517,7 @@ def render_all(results_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
         for ds in targets:
             out = out_dir / ds if ds is not None and len(datasets) > 1 else out_dir
             data = compute_table(spec, results, runtime, dataset=ds,
-                                 metrics_registry=metrics_registry, n_boot=n_boot, seed=seed)
+                                 metrics_registry=metrics_registry, n_boot=n_boot, seed=seed,
+                                 averaging=averaging)
             written += _write_all_formats(data, out, formats)
     return written

@@ -110,7 +110,7 @@ def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
     for ds in datasets:
         df = main if ds is None else main[main["dataset"] == ds]
         lb = leaderboard(df, seed=options["bootstrap_seed"], n_boot=options["bootstrap_n"],
-                         hands=hands)
+                         hands=hands, averaging=options.get("averaging", "sequence"))
         stem = "leaderboard" if len(datasets) == 1 else f"leaderboard.{ds}"
         written += [write_leaderboard_csv(lb, out / f"{stem}.csv"),
                     write_leaderboard_md(lb, out / f"{stem}.md")]
@@ -122,7 +122,8 @@ def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
 def report_options(out: Path) -> dict:
     """Rendering options saved by ``run`` in ``manifest.json`` (defaults without one)."""
     defaults = {"bootstrap_seed": C.BOOTSTRAP_SEED, "bootstrap_n": C.BOOTSTRAP_N,
-                "figure_methods": list(C.RUN_FIGURE_METHODS), "split": MAIN_SPLIT}
+                "figure_methods": list(C.RUN_FIGURE_METHODS), "split": MAIN_SPLIT,
+                "averaging": "sequence"}
     path = Path(out) / "manifest.json"
     if not path.is_file():
         return defaults
@@ -145,7 +146,8 @@ def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Pa
     options = options or report_options(out)
     results = read_results(out / "results.csv")
     written = render_all(out, out / "tables", n_boot=options["bootstrap_n"],
-                         seed=options["bootstrap_seed"])
+                         seed=options["bootstrap_seed"],
+                         averaging=options.get("averaging", "sequence"))
     figures = write_figures(out, results, options)
     written += figures
     written += write_leaderboards(out, results, options, figures)

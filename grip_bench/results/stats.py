@@ -133,9 +133,77 @@ def per_sequence(rows: pd.DataFrame) -> pd.DataFrame:
     return g.reset_index()
 
 
+AVERAGING = ("sequence", "pooled")
+AVERAGING_NOTES = {
+    "sequence": "Averaging: per sequence (each sequence's frames first, then the mean over "
+                "sequences, every sequence weighing the same).",
+    "pooled": "Averaging: pooled over frames, as GRIP's code does (each sequence weighted by "
+              "its number of evaluated frames).",
+}
+
+
+def pooled_per_sequence(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per sequence: the frame-weighted value ``sum(v n) / sum(n)`` of its finite rows and
+    its weight ``sum(n)`` (``n_frames``); a sequence without frames keeps NaN and weight 0.
+
+    Columns ``dataset, split, sequence, object, value, weight``.
+    """
+    if rows.empty:
+        return pd.DataFrame({k: [] for k in (*SEQUENCE_KEYS, "value", "weight")})
+    v = rows["value"].to_numpy(dtype=np.float64)
+    n = rows["n_frames"].to_numpy(dtype=np.float64)
+    ok = np.isfinite(v) & (n > 0)
+    df = rows[list(SEQUENCE_KEYS)].assign(vn=np.where(ok, v * n, 0.0), n=np.where(ok, n, 0.0))
+    g = df.groupby(list(SEQUENCE_KEYS), sort=True)[["vn", "n"]].sum().reset_index()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        g["value"] = np.where(g["n"] > 0, g["vn"] / g["n"], np.nan)
+    return g.rename(columns={"n": "weight"}).drop(columns="vn")
+
+
+def weighted_bootstrap_ci(values: ArrayLike, weights: ArrayLike, strata: ArrayLike | None = None,
+                          n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
+                          alpha: float = BOOTSTRAP_ALPHA) -> CI:
+    """Weighted mean ``sum(w v) / sum(w)`` of per-sequence ``values`` (n,) with ``weights``
+    (n,) and its stratified-bootstrap percentile interval: sequences are resampled within
+    their strata (whole sequences, frames stay together) and each resample's weighted mean
+    is taken. NaN values are excluded and counted, as in :func:`bootstrap_ci`."""
+    v, s = _check(values, strata, n_boot, alpha)
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    nan = np.isnan(v)
+    n, n_nan = int((~nan).sum()), int(nan.sum())
+    if n == 0:
+        return CI(np.nan, np.nan, np.nan, 0, n_nan)
+    v, w, s = v[~nan], w[~nan], s[~nan]
+    mean = float((v * w).sum() / w.sum())
+    if v.min() == v.max():
+        return CI(float(v[0]), float(v[0]), float(v[0]), n, n_nan)
+    _, codes = np.unique(s, return_inverse=True)
+    order = np.lexsort((w, v, codes))  # independent of the input row order
+    v, w, codes = v[order], w[order], codes[order]
+    sizes = np.bincount(codes)
+    start = np.concatenate([[0], np.cumsum(sizes)[:-1]])[codes]
+    size = sizes[codes]
+    rng = np.random.default_rng(seed)
+    idx = start + np.minimum((rng.random((n_boot, n)) * size).astype(np.int64), size - 1)
+    boots = (v[idx] * w[idx]).sum(axis=1) / w[idx].sum(axis=1)
+    lo, hi = np.quantile(boots, [alpha / 2, 1 - alpha / 2])
+    return CI(mean, float(lo), float(hi), n, n_nan)
+
+
 def sequence_ci(rows: pd.DataFrame, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
-                alpha: float = BOOTSTRAP_ALPHA) -> CI:
-    """Mean over sequences with its object-stratified bootstrap interval (see module doc)."""
+                alpha: float = BOOTSTRAP_ALPHA, averaging: str = "sequence") -> CI:
+    """Mean over sequences with its object-stratified bootstrap interval (see module doc);
+    ``averaging="pooled"`` weights each sequence by its evaluated frames (GRIP's code pools
+    frames) and resamples whole sequences."""
+    if averaging == "pooled":
+        seq = pooled_per_sequence(rows)
+        return weighted_bootstrap_ci(seq["value"].to_numpy(dtype=np.float64),
+                                     seq["weight"].to_numpy(dtype=np.float64),
+                                     seq["object"].to_numpy(), n_boot=n_boot, seed=seed,
+                                     alpha=alpha)
+    if averaging != "sequence":
+        raise InputError(f"unknown averaging '{averaging}' (known: {', '.join(AVERAGING)})",
+                         "averaging")
     seq = per_sequence(rows)
     return bootstrap_ci(seq["value"].to_numpy(dtype=np.float64), seq["object"].to_numpy(),
                         n_boot=n_boot, seed=seed, alpha=alpha)

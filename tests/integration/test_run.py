@@ -232,6 +232,11 @@ def test_report_rerenders_the_same_bytes(finished, tmp_path, capsys):
         p.unlink()
     assert main(["report", str(copy)]) == 0  # without the cache: nothing is recomputed
     assert _report_files(copy) == expected
+    assert "Averaging: per sequence" in (copy / "tables" / "table2_ablation.md").read_text()
+    assert main(["report", str(copy), "--averaging", "pooled"]) == 0
+    pooled = (copy / "tables" / "table2_ablation.md").read_text()
+    assert "Averaging: pooled over frames" in pooled
+    assert "Averaging: pooled over frames" in (copy / "leaderboard.md").read_text()
 
 
 def test_figures_are_drawn_from_saved_figure_data(finished):

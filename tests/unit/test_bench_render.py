@@ -60,6 +60,7 @@ EXPECTED_FUTURE_MD = """\
 
 - 0 future frames runs in real time; n > 0 adds a latency of n frames (n / 30 s).
 - 10 is the full GRIP model (its default cue), so that row is the grip run itself.
+- Averaging: per sequence (each sequence's frames first, then the mean over sequences, every sequence weighing the same).
 """  # noqa: E501
 
 

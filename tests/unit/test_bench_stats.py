@@ -94,3 +94,42 @@ def test_per_sequence_averages_rows_and_keeps_all_nan():
     assert seq["value"].iloc[0] == 2.0 and np.isnan(seq["value"].iloc[1])
     ci = sequence_ci(df)
     assert ci.mean == 2.0 and ci.n == 1 and ci.n_nan == 1
+
+
+def _rows(values, frames, objects, seqs):
+    return pd.DataFrame({"dataset": "d", "split": "test", "sequence": seqs, "object": objects,
+                         "value": values, "n_frames": frames, "hand": "right"})
+
+
+def test_pooled_averaging_weights_sequences_by_frames_hand_computed():
+    # two sequences: 10 frames at 1.0 and 30 frames at 3.0 (one of its hands NaN, 0 frames)
+    rows = _rows([1.0, 3.0, np.nan], [10, 30, 0], ["a", "b", "b"], ["s1", "s2", "s2"])
+    seq = sequence_ci(rows, n_boot=200, seed=0)
+    pooled = sequence_ci(rows, n_boot=200, seed=0, averaging="pooled")
+    assert seq.mean == pytest.approx(2.0)  # (1 + 3) / 2
+    assert pooled.mean == pytest.approx((10 * 1.0 + 30 * 3.0) / 40)  # 2.5
+    assert pooled.n == 2 and pooled.lo <= pooled.mean <= pooled.hi
+
+
+def test_weighted_bootstrap_matches_a_loop_and_equal_weights_match_the_plain_one():
+    from grip_bench.results.stats import weighted_bootstrap_ci
+
+    rng = np.random.default_rng(1)
+    v, w = rng.normal(size=12), rng.integers(1, 20, size=12).astype(float)
+    ci = weighted_bootstrap_ci(v, w, None, n_boot=400, seed=3)
+    assert ci.mean == pytest.approx((v * w).sum() / w.sum())
+    plain = bootstrap_ci(v, None, n_boot=400, seed=3)
+    equal = weighted_bootstrap_ci(v, np.ones(12), None, n_boot=400, seed=3)
+    assert equal.mean == pytest.approx(plain.mean) and equal.lo < equal.mean < equal.hi
+    # a naive loop of the same resampling gives an interval of the same width (within noise)
+    boots = []
+    for _ in range(400):
+        i = rng.integers(0, 12, size=12)
+        boots.append((v[i] * w[i]).sum() / w[i].sum())
+    lo, hi = np.quantile(boots, [0.025, 0.975])
+    assert abs((ci.hi - ci.lo) - (hi - lo)) < 0.35 * (hi - lo)
+
+
+def test_unknown_averaging_is_an_input_error():
+    with pytest.raises(InputError, match="unknown averaging"):
+        sequence_ci(_rows([1.0], [3], ["a"], ["s"]), averaging="median")

@@ -15,14 +15,14 @@ from grip_bench.metrics.aggregate import dataset_name, perturbation_name
 from tests.eval_fixtures import grasp_dataset
 
 FAST = E.EvalOptions(physics=False)
-POSE_CONTACT = ["mpjpe", "mpvpe", "cc", "contact_drift", "contact_ratio", "jitter_err"]
+POSE_CONTACT = ["mpjpe", "mpvpe", "cc", "contact_drift", "cdev", "contact_ratio", "accel_err"]
 
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     """(library, {family: GT sequence}): a one-handed mug lift and a two-handed cylinder pass."""
     root = tmp_path_factory.mktemp("evaldata")
-    files = grasp_dataset(root, T=16)
+    files = grasp_dataset(root, T=40)  # lifted from frame 21: 9 held frames after the trim
     seqs = {read_grab(f).obj_name: read_grab(f) for f in files}
     return ObjectLibrary(root), seqs
 
@@ -40,13 +40,16 @@ def test_ground_truth_against_itself_is_exactly_zero(data):
         got = _by(rows)
         for side in ("right", "left"):
             assert got[side, "mpjpe"].value == 0.0 and got[side, "mpvpe"].value == 0.0
-            assert got[side, "jitter_err"].value == 0.0
+            assert got[side, "accel_err"].value == 0.0
         right = {
-            m: got["right", m] for m in ("cc", "contact_drift", "contact_ratio", "iv", "sim_stable")
+            m: got["right", m] for m in ("cc", "contact_drift", "cdev", "contact_ratio",
+                                         "contact_ratio_strict", "iv", "sim_stable")
         }
         assert right["cc"].value == 0.0 and right["cc"].n_frames > 0
         assert right["contact_drift"].value == 0.0 and right["contact_drift"].n_frames > 0
         assert right["contact_ratio"].value == 100.0
+        assert right["contact_ratio_strict"].value == 100.0  # held frames: thumb + finger by rule
+        assert 0.0 <= right["cdev"].value <= 2.0 and right["cdev"].n_frames > 0  # GT: own gap
         assert right["iv"].n_frames > 0 and right["sim_stable"].n_frames == 2
         assert {r.unit for r in rows if r.metric == "iv"} == {"cm3"}
 
@@ -78,9 +81,6 @@ def test_per_frame_rows_average_to_the_sequence_value(data):
     rows, frames = E.evaluate_sequence(pred, gt, lib, per_frame=True, options=FAST)
     for r in rows:
         vals = [f.value for f in frames if (f.hand, f.metric) == (r.hand, r.metric)]
-        if r.metric == "jitter_err":
-            assert vals == []
-            continue
         finite = [v for v in vals if not math.isnan(v)]
         assert len(finite) == r.n_frames
         if finite:
@@ -162,11 +162,24 @@ def test_warped_hand_manifolds_match_fresh_builds(data):
     assert posed.perm is not None  # the warp path was really taken
 
 
-def test_physics_frames_are_evenly_spaced_grasp_frames():
+def test_evenly_spaced_frames_and_seeded_physics_frames(data):
     mask = np.zeros(40, bool)
     mask[10:30] = True
-    np.testing.assert_array_equal(E.physics_frames(mask, 3), [10, 20, 29])  # 9.5 rounds to even
-    assert len(E.physics_frames(mask, 50)) == 20 and len(E.physics_frames(mask, 0)) == 0
+    np.testing.assert_array_equal(E.evenly_spaced(mask, 3), [10, 20, 29])  # 9.5 rounds to even
+    assert len(E.evenly_spaced(mask, 50)) == 20 and len(E.evenly_spaced(mask, 0)) == 0
+    lib, seqs = data
+    gt = seqs["mug"]
+
+    def draw(seed, k=3):
+        opts = E.EvalOptions(max_physics_frames=k, physics_seed=seed)
+        return E.physics_frames(E.SequencePair(gt, gt, lib, opts, I.FailureCounter()), "right")
+
+    held = np.flatnonzero(E.SequencePair(gt, gt, lib, FAST, I.FailureCounter()).held("right"))
+    a = draw(0)
+    assert len(a) == 3 and set(a) <= set(held) and list(a) == sorted(a)
+    np.testing.assert_array_equal(a, draw(0))  # deterministic for a seed
+    assert any(not np.array_equal(a, draw(s)) for s in range(1, 6))  # and the seed matters
+    np.testing.assert_array_equal(draw(0, k=100), held)  # fewer held frames than k: all
 
 
 def test_metric_selection_and_errors(data):
@@ -207,6 +220,7 @@ def test_contact_stats_pool_to_the_contact_frequency_of_all_grasp_frames(data, t
     pred.rhand["transl"] = pred.rhand["transl"] + np.array([0.0, -0.004, 0.0])  # push it in
     pairs = [(pred, seqs["mug"]), *((gt, gt) for gt in seqs.values())]
     stats, sds, masks = [], {"right": [], "left": []}, {"right": [], "left": []}
+    n_held = {"right": 0, "left": 0}
     for p, gt in pairs:
         plain, plain_frames = E.evaluate_sequence(p, gt, lib, options=FAST, per_frame=True)
         got: dict = {}
@@ -220,8 +234,10 @@ def test_contact_stats_pool_to_the_contact_frequency_of_all_grasp_frames(data, t
             sds[side].append(pair.track("pred", side).sd)
             masks[side].append(pair.grasp(side))
             pen = [r.value for r in frames if r.hand == side and r.metric == "pen_depth"]
+            assert len(pen) == int(pair.held(side).sum())  # pen_depth and the CDF: held frames
             np.testing.assert_allclose(got[side]["depths"], pen, rtol=1e-12, atol=1e-12)  # mm
             assert int(got[side]["frames"]) == int(pair.grasp(side).sum())
+            n_held[side] += int(pair.held(side).sum())
     pooled = pool_contact_stats(stats)
     for side in ("right", "left"):
         freq = contact_frequency(np.concatenate(sds[side]), np.concatenate(masks[side]))
@@ -229,7 +245,7 @@ def test_contact_stats_pool_to_the_contact_frequency_of_all_grasp_frames(data, t
         assert n == sum(int(m.sum()) for m in masks[side]) > 0
         assert pooled[f"{side}_counts"].dtype == np.int64
         np.testing.assert_allclose(pooled[f"{side}_counts"] / n, freq, rtol=0, atol=1e-12)
-        assert len(pooled[f"{side}_depths"]) == n
+        assert len(pooled[f"{side}_depths"]) == n_held[side]
     assert pooled["right_depths"].max() > 0  # the pushed-in hand penetrates
     assert int(stats[0]["left"]["frames"]) == 0 and not stats[0]["left"]["counts"].any()
     a, b = write_npz(tmp_path / "a.npz", pooled), write_npz(tmp_path / "b.npz", pooled)

@@ -6,11 +6,15 @@ import pytest
 from grip_bench.core import constants as C
 from grip_bench.metrics import (
     contact_consistency,
+    contact_deviation,
     contact_drift,
     contact_frequency,
     contact_ratio,
     grasp_mask,
+    held_mask,
+    object_lift,
 )
+from grip_bench.metrics.contact import strict_contact
 
 
 def test_grasp_mask_and_ratio_match_loops():
@@ -51,24 +55,126 @@ def test_cc_matches_loop():
         np.testing.assert_allclose(contact_consistency(pred, gt, d)[t], ref, rtol=1e-12)
 
 
-def test_rigid_grasp_has_zero_drift_and_sliding_is_measured():
+def naive_drift(pred, gt, gt_sd, mask, thr=C.CC_THRESHOLD):
+    """Loop reference of ARCTIC-style drift on the GT's contact vertices."""
+    out = [np.nan]
+    for t in range(1, len(pred)):
+        sel = [i for i in range(pred.shape[1]) if gt_sd[t, i] <= thr and gt_sd[t - 1, i] <= thr]
+        if not (mask[t] and mask[t - 1]) or not sel:
+            out.append(np.nan)
+            continue
+        out.append(np.mean([np.linalg.norm((pred[t, i] - pred[t - 1, i])
+                                           - (gt[t, i] - gt[t - 1, i])) for i in sel]))
+    return np.array(out)
+
+
+def test_drift_is_zero_for_gt_and_rigid_offsets_and_measures_sliding():
     T, V = 5, 4
-    d = np.full((T, V), 0.001)
-    local = np.tile(np.random.default_rng(5).normal(size=(1, V, 3)), (T, 1, 1))
+    gt_sd = np.full((T, V), 0.001)
+    gt = np.tile(np.random.default_rng(5).normal(size=(1, V, 3)), (T, 1, 1))
     mask = np.ones(T, bool)
-    drift = contact_drift(d, local, mask)
-    assert np.isnan(drift[0]) and np.allclose(drift[1:], 0.0)
-    local[:, 0, 0] += 0.002 * np.arange(T)  # vertex 0 slides 2 mm per frame, others hold
-    np.testing.assert_allclose(contact_drift(d, local, mask)[1:], 0.0005)
+    assert np.isnan(contact_drift(gt, gt, gt_sd, mask)[0])
+    np.testing.assert_allclose(contact_drift(gt, gt, gt_sd, mask)[1:], 0.0)
+    np.testing.assert_allclose(contact_drift(gt + [0.01, 0, 0], gt, gt_sd, mask)[1:], 0.0)
+    pred = gt.copy()
+    pred[:, :, 0] += 0.002 * np.arange(T)[:, None]  # the whole hand slides 2 mm per frame
+    np.testing.assert_allclose(contact_drift(pred, gt, gt_sd, mask)[1:], 0.002)
 
 
-def test_drift_uses_prediction_contacts_and_grasp_frames():
-    d = np.array([[0.001, 0.02], [0.001, 0.001], [0.001, 0.001]])
-    local = np.zeros((3, 2, 3))
-    local[:, :, 1] = [[0.0, 0.0], [0.003, 0.05], [0.006, 0.08]]
-    drift = contact_drift(d, local, np.array([True, True, False]))
-    assert drift[1] == pytest.approx(0.003)  # vertex 1 was not in contact at frame 0
-    assert np.isnan(drift[2])  # frame 2 is not a grasp frame
+def test_drift_uses_the_ground_truths_vertices_so_not_touching_is_not_zero():
+    gt_sd = np.array([[0.001, 0.05], [0.001, 0.05], [0.001, 0.05]])
+    gt = np.zeros((3, 2, 3))
+    pred = np.zeros((3, 2, 3))
+    pred[:, 0, 1] = [0.0, 0.01, 0.02]  # far from the object, moving: its own distances unused
+    drift = contact_drift(pred, gt, gt_sd, np.array([True, True, False]))
+    assert drift[1] == pytest.approx(0.01)
+    assert np.isnan(drift[2])  # frame 2 is not held
+
+
+def test_drift_matches_loop():
+    rng = np.random.default_rng(8)
+    pred, gt = rng.normal(size=(2, 12, 9, 3)) * 0.01
+    gt_sd = rng.uniform(-0.001, 0.004, size=(12, 9))
+    mask = rng.random(12) > 0.2
+    np.testing.assert_allclose(contact_drift(pred, gt, gt_sd, mask),
+                               naive_drift(pred, gt, gt_sd, mask), rtol=1e-12)
+
+
+def test_cdev_hand_worked_and_loop():
+    gt_sd = np.array([[0.001, 0.01, -0.001], [0.03, 0.03, 0.03]])
+    pred_sd = np.array([[0.004, 0.0, -0.002], [0.0, 0.0, 0.0]])
+    out = contact_deviation(pred_sd, gt_sd)
+    assert out[0] == pytest.approx((0.004 + 0.002) / 2)  # inside deviates as much as outside
+    assert np.isnan(out[1])
+    rng = np.random.default_rng(2)
+    g, p = rng.uniform(-0.002, 0.006, size=(2, 10, 7))
+    ref = [np.mean([abs(p[t, i]) for i in range(7) if g[t, i] <= C.CC_THRESHOLD]) if
+           (g[t] <= C.CC_THRESHOLD).any() else np.nan for t in range(10)]
+    np.testing.assert_allclose(contact_deviation(p, g), ref, rtol=1e-12)
+
+
+def test_object_lift_of_a_cube_raised_one_centimetre():
+    c = (-0.02, 0.02)
+    cube = np.array([[x, y, z] for x in c for y in c for z in c])
+    R = np.tile(np.eye(3), (3, 1, 1))
+    t = np.array([[0, 0.02, 0], [0, 0.025, 0], [0, 0.03, 0]])
+    np.testing.assert_allclose(object_lift(cube, R, t, np.array([0, 1.0, 0])), [0, 0.005, 0.01])
+    # turning the cube about its centre by 45 degrees lowers its lowest corner
+    c, s_ = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    R[1] = [[c, s_, 0], [-s_, c, 0], [0, 0, 1]]
+    lift = object_lift(cube, R, np.zeros((3, 3)), np.array([0, 1.0, 0]))
+    assert lift[1] == pytest.approx(0.02 - 0.02 * np.sqrt(2))
+
+
+def naive_held(sd, finger, lift, touch=C.HELD_TOUCH, min_lift=C.HELD_MIN_LIFT, trim=C.HELD_TRIM):
+    raw = []
+    for t in range(len(sd)):
+        thumb = any(sd[t, i] <= touch for i in range(sd.shape[1]) if finger[i] == 0)
+        other = any(sd[t, i] <= touch for i in range(sd.shape[1]) if finger[i] > 0)
+        raw.append(thumb and other and lift[t] >= min_lift)
+    out = [False] * len(raw)
+    t = 0
+    while t < len(raw):
+        if raw[t]:
+            e = t
+            while e < len(raw) and raw[e]:
+                e += 1
+            for k in range(t + trim, e - trim):
+                out[k] = True
+            t = e
+        else:
+            t += 1
+    return np.array(out)
+
+
+def test_held_mask_cases_and_loop():
+    finger = np.array([0, 1, 2, -1])
+    T = 30
+    sd = np.full((T, 4), 0.01)
+    sd[:, [0, 1]] = 0.001
+    lift = np.full(T, 0.01)
+    held = held_mask(sd, finger, lift)
+    assert not held[:5].any() and not held[-5:].any() and held[5:-5].all()
+    lift[12] = 0.004  # one frame resting: two runs, each trimmed
+    held = held_mask(sd, finger, lift)
+    assert held[5:7].all() and not held[7:18].any() and held[18:25].all()
+    sd2 = sd.copy()
+    sd2[:, 1] = 0.01  # the thumb alone grips nothing (the palm does not count)
+    sd2[:, 3] = 0.0
+    assert not held_mask(sd2, finger, np.full(T, 0.01)).any()
+    short = np.full(10, 0.01)  # a 10-frame hold vanishes under the 5 + 5 trim
+    assert not held_mask(sd[:10], finger, short).any()
+    rng = np.random.default_rng(4)
+    sd3 = rng.uniform(0, 0.004, size=(80, 6))
+    f3 = np.array([0, 1, 2, 3, 4, -1])
+    lift3 = np.where(rng.random(80) > 0.1, 0.01, 0.0)
+    np.testing.assert_array_equal(held_mask(sd3, f3, lift3), naive_held(sd3, f3, lift3))
+
+
+def test_strict_contact_needs_thumb_and_a_finger():
+    finger = np.array([0, 1, -1])
+    sd = np.array([[0.001, 0.001, 0.05], [0.001, 0.003, 0.0], [-0.001, -0.002, 0.05]])
+    np.testing.assert_array_equal(strict_contact(sd, finger), [True, False, True])
 
 
 def test_contact_frequency_matches_loop():

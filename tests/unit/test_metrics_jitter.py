@@ -33,3 +33,25 @@ def test_jitter_tiny_and_error():
     assert jitter(v) == pytest.approx(1.8)
     assert jitter_error(v, np.zeros_like(v)) == pytest.approx(1.8)
     assert np.isnan(jitter(v[:2]))
+
+
+def test_acceleration_error_analytic_loop_and_same_energy():
+    from grip_bench.metrics import acceleration_error
+
+    t = np.arange(12) / C.FPS
+    gt = np.zeros((12, 2, 3))
+    pred = gt.copy()
+    pred[..., 2] = 0.5 * 3.0 * t[:, None] ** 2  # an extra 3 m/s^2 along z
+    np.testing.assert_allclose(acceleration_error(pred, gt), 3.0, rtol=1e-9)
+    # the same acceleration magnitude in another direction: jitter_err 0, acceleration error > 0
+    other = gt.copy()
+    other[..., 0] = 0.5 * 3.0 * t[:, None] ** 2
+    assert jitter_error(pred, other) == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(acceleration_error(pred, other), 3.0 * np.sqrt(2), rtol=1e-9)
+    rng = np.random.default_rng(9)
+    p, g = rng.normal(size=(2, 6, 4, 3)) * 0.01
+    ref = [np.mean([np.linalg.norm(((p[k + 1, i] - 2 * p[k, i] + p[k - 1, i])
+                                    - (g[k + 1, i] - 2 * g[k, i] + g[k - 1, i])) * C.FPS**2)
+                    for i in range(4)]) for k in range(1, 5)]
+    np.testing.assert_allclose(acceleration_error(p, g), ref, rtol=1e-12)
+    assert acceleration_error(p[:2], g[:2]).shape == (0,)

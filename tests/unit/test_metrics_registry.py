@@ -4,8 +4,8 @@ from grip_bench.cli import catalog
 from grip_bench.metrics import METRICS
 
 IDS = [
-    "mpjpe", "mpvpe", "cc", "contact_drift", "iv", "pen_depth", "contact_ratio",
-    "sim_stable", "sim_disp", "sim_disp_hold", "jitter", "jitter_err",
+    "mpjpe", "mpvpe", "cc", "contact_drift", "cdev", "iv", "pen_depth", "contact_ratio",
+    "contact_ratio_strict", "sim_stable", "sim_disp", "sim_disp_hold", "jitter", "accel_err",
 ]
 
 
@@ -15,4 +15,4 @@ def test_all_ids_registered_and_described():
     assert len(lines) == len(IDS) and all("\n" not in line for line in lines)
     assert METRICS.get("iv").to_report(1e-6) == 1.0  # 1 cm^3
     assert METRICS.get("pen_depth").unit == "mm" and METRICS.get("contact_ratio").higher_is_better
-    assert {s.frame_mask for s in METRICS} == {"all", "grasp"}
+    assert {s.frame_mask for s in METRICS} == {"all", "held"}

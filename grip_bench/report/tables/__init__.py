@@ -39,7 +39,7 @@ import pandas as pd
 from ...core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED, REPORT_DECIMALS
 from ...core.errors import InputError
 from ...core.registry import Registry
-from ...results.stats import CI, bootstrap_ci, sequence_ci
+from ...results.stats import AVERAGING_NOTES, CI, bootstrap_ci, sequence_ci
 
 if TYPE_CHECKING:
     from ...metrics.registry import MetricSpec
@@ -357,14 +357,16 @@ def _results_cell(
     registry: Registry[MetricSpec] | None,
     n_boot: int,
     seed: int,
+    averaging: str = "sequence",
 ) -> Cell:
     rows = index.select(flt)
     unit, hib, _ = _metric_info(flt["metric"], registry, rows["unit"])
-    ci = sequence_ci(rows, n_boot=n_boot, seed=seed) if len(rows) else None
+    ci = sequence_ci(rows, n_boot=n_boot, seed=seed, averaging=averaging) if len(rows) else None
     before, bflt = None, {**flt, **(col.before or {})}
     if col.before is not None:
         brows = index.select(bflt)
-        before = sequence_ci(brows, n_boot=n_boot, seed=seed) if len(brows) else None
+        before = (sequence_ci(brows, n_boot=n_boot, seed=seed, averaging=averaging)
+                  if len(brows) else None)
     return Cell(ci=ci, before=before, paired=col.before is not None,
                 before_method=bflt["method"] if col.before is not None else None,
                 metric=flt["metric"],
@@ -438,17 +440,24 @@ def compute_table(
     metrics_registry: Registry[MetricSpec] | None = None,
     n_boot: int = BOOTSTRAP_N,
     seed: int = BOOTSTRAP_SEED,
+    averaging: str = "sequence",
 ) -> TableData:
-    """Fill ``spec`` from validated results (or runtime) frames; missing cells stay empty."""
+    """Fill ``spec`` from validated results (or runtime) frames; missing cells stay empty.
+
+    ``averaging``: "sequence" (every sequence weighs the same) or "pooled" (weighted by its
+    evaluated frames, as GRIP's code); results tables state it in their last note."""
     registry = metrics_registry if metrics_registry is not None else default_metric_registry()
     columns = tuple(_column_header(spec, c, registry) for c in spec.columns)
     if spec.source == "runtime":
         rows = _runtime_rows(spec, runtime, n_boot=n_boot, seed=seed)
     else:
-        rows = _results_rows(spec, results, dataset, registry, n_boot, seed)
+        rows = _results_rows(spec, results, dataset, registry, n_boot, seed, averaging)
+    notes = spec.notes
+    if spec.source != "runtime":
+        notes = (*notes, AVERAGING_NOTES[averaging])
     return TableData(id=spec.id, title=spec.title, version=spec.version,
                      description=spec.description, row_header=spec.row_header,
-                     columns=columns, rows=tuple(mark_best(rows)), notes=spec.notes)
+                     columns=columns, rows=tuple(mark_best(rows)), notes=tuple(notes))
 
 
 def _results_rows(
@@ -458,6 +467,7 @@ def _results_rows(
     registry: Registry[MetricSpec] | None,
     n_boot: int,
     seed: int,
+    averaging: str = "sequence",
 ) -> list[Row]:
     if results is None:
         results = pd.DataFrame({c: [] for c in ("method", "metric", "perturbation", "dataset",
@@ -470,7 +480,7 @@ def _results_rows(
             flt = spec.cell_filters(r, c)
             if dataset is not None:
                 flt["dataset"] = dataset
-            cells.append(_results_cell(index, flt, c, registry, n_boot, seed))
+            cells.append(_results_cell(index, flt, c, registry, n_boot, seed, averaging))
         unit, hib = _row_group_info(spec, r, registry)
         rows.append(Row(label=r.label, cells=tuple(cells), group=r.group, group_unit=unit,
                         group_higher_is_better=hib, reference=r.reference))
