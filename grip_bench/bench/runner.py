@@ -35,6 +35,9 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
         heatmap_data.npz           per-vertex contact frequency, gt + [run] figure_methods
         penetration_depths.npz     per-frame penetration depths (mm), the same methods
         contact_heatmaps.png  penetration_cdf.png  per_object_<metric>.png (mpvpe, iv)
+        metric_validity.png        each metric's response to degraded ground truth
+    OUT/validity.{csv,json}        metric validity ([run] validity_sequences > 0) and its inputs
+    OUT/tables/metric_validity.{md,csv}  the same as a table, each claim PASS / FAIL
     OUT/manifest.json              versions, git revision, profile, config, seeds, data hash,
                                    wall time per stage (docs/contract.md, "Results")
     OUT/run.log                    what each run did (appended)
@@ -151,10 +154,40 @@ def assemble_figure_data(st: RunState) -> None:
         (figs / DEPTH_DATA).unlink()
 
 
+def stage_validity(st: RunState) -> None:
+    """``OUT/validity.csv`` when ``[run] validity_sequences`` > 0: each metric's response to
+    degraded ground truth (``metrics.validity``; physics off, 4 IV frames). Recomputed only
+    when its inputs (data hash, sequences, seed, the validity code's digest) changed; they
+    are kept in ``OUT/validity.json``."""
+    import json
+
+    from ..core.io import atomic_write_text
+    from ..metrics.evaluate import EvalOptions
+    from ..metrics.validity import metric_validity
+    from .codehash import CodeIndex
+
+    n = int(st.cfg.settings.get("validity_sequences", 0))
+    out, meta = st.cfg.out / "validity.csv", st.cfg.out / "validity.json"
+    if n <= 0:
+        return
+    inputs = {"data_hash": _data_hash(st), "sequences": n, "seed": st.cfg.seed,
+              "code": CodeIndex.installed().digest(["grip_bench.metrics.validity"])}
+    if out.is_file() and meta.is_file() and json.loads(meta.read_text()) == inputs:
+        st.log("validity: reused")
+        return
+    t0 = time.perf_counter()
+    df = metric_validity(str(st.data_dir(st.plan.data_key)), MAIN_SPLIT, n, st.cfg.seed,
+                         EvalOptions(physics=False, max_iv_frames=4), progress=st.cfg.progress)
+    atomic_write_text(out, df.to_csv(index=False))
+    atomic_write_text(meta, json.dumps(inputs, indent=1))
+    st.stage_times["validity"] = round(time.perf_counter() - t0, 3)
+
+
 def stage_report(st: RunState) -> None:
     t0 = time.perf_counter()
     assemble_results(st)
     assemble_figure_data(st)
+    stage_validity(st)
     written = write_report(st.cfg.out, st.cfg.report_options())
     pngs = [p.name for p in written if p.suffix == ".png"]
     st.log(f"figures: {', '.join(pngs)}" if pngs else "figures: none drawn (no figure data)")

@@ -16,7 +16,7 @@ from ..core.version import __version__
 
 # Each module defines ``register(subparsers)`` and sets ``func`` on its parser.
 # Later issues append their subcommand modules here.
-SUBCOMMANDS = ["ls", "data", "export", "evaluate", "train", "predict", "run", "report"]
+SUBCOMMANDS = ["ls", "data", "export", "evaluate", "validity", "train", "predict", "run", "report"]
 
 DESCRIPTION = """\
 grip-bench: train and evaluate hand-object interaction motion synthesis
@@ -30,6 +30,7 @@ a typical session:
   grip-bench train grip --data data/synth --out grip.pt     train a method (grip-bench ls methods)
   grip-bench predict --method grip --checkpoint grip.pt --input data/synth --out pred
   grip-bench evaluate --pred pred --gt data/synth --out eval
+  grip-bench validity --data data/synth --out val          can each metric tell good from bad?
   grip-bench run --profile smoke                            the above for every method and table
   grip-bench <command> --help                               help for one command
 """

@@ -210,6 +210,8 @@ INTERACTION_DISTANCE = 0.02  # m; RNet refines frames whose hand is within this 
 # grip_bench.metrics.evaluate: per-sequence aggregation of the metric functions.
 EVAL_MAX_PHYSICS_FRAMES = 8  # MuJoCo tests per sequence and hand (evenly spaced grasp frames);
 # each costs ~30-50 ms (paper protocol) plus a 1 s hold, so all grasp frames would dominate the run
+VALIDITY_NEAR = 0.02  # m; push / pull degradations act on frames with the hand this close
+VALIDITY_CONTACT = 0.005  # m; vertices this close set the push / pull direction (mean normal)
 EVAL_EXACT_BAND = 0.005  # m; grid distances below this (contact, CC, penetration) are recomputed
 # exactly, so every threshold decision (4.5 mm, 2 mm, inside) is made on exact distances
 EVAL_MAX_LISTED = 5  # missing / extra sequences named in a mismatch error (then a count)

@@ -70,7 +70,7 @@ def validate_profile(data: dict, schema: dict, where: Path) -> dict:
 
 
 # Keys added after profiles were in users' hands: a profile without them gets the default's.
-OPTIONAL_KEYS = {"run": ("averaging",)}
+OPTIONAL_KEYS = {"run": ("averaging", "validity_sequences")}
 
 
 def load_profile(name: str | Path = "default") -> dict:

@@ -150,5 +150,8 @@ def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Pa
                          averaging=options.get("averaging", "sequence"))
     figures = write_figures(out, results, options)
     written += figures
+    from .validity import write_validity
+
+    written += write_validity(out)  # when the run measured metric validity
     written += write_leaderboards(out, results, options, figures)
     return written
