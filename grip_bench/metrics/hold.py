@@ -177,7 +177,6 @@ def _refine(pieces: SurfacePieces, bad: np.ndarray, v: np.ndarray, f: np.ndarray
 
 # ---------------------------------------------------------------- scene
 _LRU_SIZE = 16
-_INERTIA_CACHE: OrderedDict[str, tuple] = OrderedDict()
 
 
 def _remember(cache: OrderedDict, key: str, value: object) -> None:
@@ -218,21 +217,6 @@ def _add_pieces(spec: mujoco.MjSpec, body: mujoco.MjsBody, pieces: list[np.ndarr
         _contact_params(geom, hand)
 
 
-def _object_inertia(obj: trimesh.Trimesh, density: float) -> tuple[float, np.ndarray, np.ndarray]:
-    """Mass, centre of mass (3,) and inertia [xx, yy, zz, xy, xz, yz] of the true shape."""
-    import trimesh
-
-    key = hashlib.sha1(np.ascontiguousarray(obj.vertices, np.float64).tobytes()
-                       + repr(density).encode()).hexdigest()
-    if key not in _INERTIA_CACHE:
-        props = trimesh.triangles.mass_properties(obj.triangles, density=density)
-        i = np.asarray(props.inertia)
-        full = np.array([i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]])
-        _remember(_INERTIA_CACHE, key, (float(props.mass), np.asarray(props.center_mass), full))
-    mass, com, full = _INERTIA_CACHE[key]
-    return mass, com.copy(), full.copy()
-
-
 def _near(points: list[np.ndarray], other: np.ndarray, reach: float) -> list[bool]:
     """Whether each point set (n_i, 3) comes within ``reach`` of the point cloud ``other``."""
     from scipy.spatial import cKDTree
@@ -268,17 +252,9 @@ def _spec(up: tuple[float, float, float], friction: float = C.SIM_FRICTION) -> m
 
 def _add_object(spec: mujoco.MjSpec, obj: trimesh.Trimesh, pieces: list[np.ndarray],
                 pose: tuple[np.ndarray, np.ndarray] | None, density: float) -> None:
-    body = spec.worldbody.add_body()
-    body.name = "object"
-    if pose is not None:
-        rot, trans = pose
-        body.pos = np.asarray(trans, dtype=np.float64).tolist()
-        body.quat = _matrix_to_wxyz(np.asarray(rot, dtype=np.float64)).tolist()
-    body.add_freejoint()
-    mass, com, full = _object_inertia(obj, density)
-    body.explicitinertial = True
-    body.mass, body.ipos, body.fullinertia = mass, com.tolist(), full.tolist()
-    _add_pieces(spec, body, pieces, "obj", hand=False)
+    from .physics import add_free_object
+
+    _add_pieces(spec, add_free_object(spec, obj, pose, density), pieces, "obj", hand=False)
 
 
 def _object_world_pieces(obj: trimesh.Trimesh, pose: tuple[np.ndarray, np.ndarray] | None
@@ -436,13 +412,6 @@ def _chains(parents: tuple[int, ...]) -> list[list[int]]:
             chain.append(b)
         out.append(chain)
     return out
-
-
-def _matrix_to_wxyz(rot: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(rot).as_quat()
-    return np.array([w, x, y, z])
 
 
 # ---------------------------------------------------------------- simulation

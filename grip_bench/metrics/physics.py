@@ -315,18 +315,27 @@ def build_model(
     # rigid hand that does not penetrate could otherwise never hold anything.
     # World geoms: fixed, never collide with each other.
     _add_pieces(spec, spec.worldbody, hand_pieces, "hand", margin=C.SIM_CONTACT_MARGIN)
+    body = add_free_object(spec, obj, obj_pose, density)
+    _add_pieces(spec, body, obj_pieces, "obj")
+    return spec.compile()
+
+
+def add_free_object(spec: mujoco.MjSpec, obj: trimesh.Trimesh,
+                    pose: tuple[np.ndarray, np.ndarray] | None,
+                    density: float) -> mujoco.MjsBody:
+    """The body "object": free joint, placed by ``pose`` = (R, t) (world = R @ local + t), with
+    the mass and inertia of the true closed mesh (collision pieces overlap and overfill)."""
     body = spec.worldbody.add_body()
     body.name = "object"
-    if obj_pose is not None:
-        rot, trans = obj_pose
+    if pose is not None:
+        rot, trans = pose
         body.pos = np.asarray(trans, dtype=np.float64).tolist()
         body.quat = _matrix_to_wxyz(np.asarray(rot, dtype=np.float64)).tolist()
     body.add_freejoint()
     mass, com, full = _object_inertia(obj, density)
     body.explicitinertial = True
     body.mass, body.ipos, body.fullinertia = mass, com.tolist(), full.tolist()
-    _add_pieces(spec, body, obj_pieces, "obj")
-    return spec.compile()
+    return body
 
 
 def _matrix_to_wxyz(rot: np.ndarray) -> np.ndarray:

@@ -59,11 +59,15 @@ def wrist_shift(seq: Sequence, level: float, library: ObjectLibrary, seed: int) 
 def finger_noise(seq: Sequence, level: float, library: ObjectLibrary, seed: int) -> Sequence:
     """I.i.d. Gaussian noise of std ``level`` rad on every finger axis-angle of every frame
     (GRAB-R's kind of noise; the same draw scaled for every level)."""
-    rng = _rng(seq, "noise", seed)
+    return _gaussian(seq, "hand_pose", level, _rng(seq, "noise", seed))
+
+
+def _gaussian(seq: Sequence, key: str, level: float, rng: np.random.Generator) -> Sequence:
+    """``level`` times standard normal noise added to each hand's ``key`` parameters."""
     new = {}
     for side in SIDES:
-        p = seq.hand_params(side)
-        new[side] = {"hand_pose": p["hand_pose"] + level * rng.normal(size=p["hand_pose"].shape)}
+        p = seq.hand_params(side)[key]
+        new[side] = {key: p + level * rng.normal(size=p.shape)}
     return seq.with_hands(**new)
 
 
@@ -142,12 +146,7 @@ def pull_off(seq: Sequence, level: float, library: ObjectLibrary, seed: int) -> 
 
 def temporal_jitter(seq: Sequence, level: float, library: ObjectLibrary, seed: int) -> Sequence:
     """I.i.d. Gaussian wrist noise of std ``level`` m per frame and axis (capture jitter)."""
-    rng = _rng(seq, "jitter", seed)
-    new = {}
-    for side in SIDES:
-        p = seq.hand_params(side)
-        new[side] = {"transl": p["transl"] + level * rng.normal(size=p["transl"].shape)}
-    return seq.with_hands(**new)
+    return _gaussian(seq, "transl", level, _rng(seq, "jitter", seed))
 
 
 @dataclass(frozen=True)
