@@ -148,10 +148,10 @@ def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Pa
     written = render_all(out, out / "tables", n_boot=options["bootstrap_n"],
                          seed=options["bootstrap_seed"],
                          averaging=options.get("averaging", "sequence"))
-    figures = write_figures(out, results, options)
-    written += figures
     from .validity import write_validity
 
-    written += write_validity(out)  # when the run measured metric validity
+    validity = write_validity(out)  # when the run measured metric validity
+    figures = write_figures(out, results, options) + [p for p in validity if p.suffix == ".png"]
+    written += figures + [p for p in validity if p.suffix != ".png"]
     written += write_leaderboards(out, results, options, figures)
     return written

@@ -29,7 +29,7 @@ METRICS = ["mpjpe", "mpvpe", "cc", "contact_ratio"]
 FORMATS = ("md", "csv", "tex", "html")
 KINDS = ("dataset", "perturbed", "prediction", "metrics", "runtime")
 FIGURES = ("heatmap_data.npz", "penetration_depths.npz", "contact_heatmaps.png",
-           "penetration_cdf.png", "per_object_mpvpe.png")
+           "penetration_cdf.png", "per_object_mpvpe.png", "metric_validity.png")
 # units of the tiny run: 1 dataset, 2 perturbed sets, 4 clean + 2 perturbed predictions
 # (perturbed-input, Table 3's "before" row, has no clean run), as many metric sets, 4 runtime units
 N_UNITS = 1 + 2 + 5 + 5 + 4
@@ -56,6 +56,7 @@ runtime_repeats = 2
 physics_frames = 4
 iv_frames = 0
 figure_methods = ["mean-pose"]
+validity_sequences = 1
 """
 
 
@@ -233,6 +234,8 @@ def test_report_rerenders_the_same_bytes(finished, tmp_path, capsys):
     assert main(["report", str(copy)]) == 0  # without the cache: nothing is recomputed
     assert _report_files(copy) == expected
     assert "Averaging: per sequence" in (copy / "tables" / "table2_ablation.md").read_text()
+    assert (finished / "validity.json").is_file()  # the runner's validity stage ran
+    assert "verdict" in (copy / "tables" / "metric_validity.md").read_text()
     assert main(["report", str(copy), "--averaging", "pooled"]) == 0
     pooled = (copy / "tables" / "table2_ablation.md").read_text()
     assert "Averaging: pooled over frames" in pooled
