@@ -12,7 +12,7 @@ import json
 import os
 import re
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from ..metrics.evaluate import EvalOptions
     from ..report.tables import ColumnSpec
 
-STAGES = ("data", "perturb", "train", "predict", "evaluate", "runtime", "report")
+STAGES = ("data", "perturb", "train", "predict", "evaluate", "runtime", "validity", "report")
 _PERTURBATION_RE = re.compile(r"^(T|R)(\d+(?:\.\d+)?)$")
 
 # [run] keys, as in ``grip_bench/profiles/default.toml`` (the schema every profile follows;
@@ -65,6 +65,9 @@ def run_settings(profile: dict, where: str | os.PathLike) -> dict:
             raise InputError(f"[run] {key} is too small: {s[key]}", where=f"{where}: run.{key}")
     for label in s["perturbations"]:
         parse_perturbation(label)
+    if s.get("validity_sequences", 0) < 0:  # optional key
+        raise InputError(f"[run] validity_sequences is too small: {s['validity_sequences']}",
+                         where=f"{where}: run.validity_sequences")
     if s.get("averaging", "sequence") not in ("sequence", "pooled"):  # optional key
         raise InputError("[run] averaging must be 'sequence' or 'pooled'",
                          where=f"{where}: run.averaging")
@@ -197,7 +200,8 @@ def _check_device(device: str) -> None:
 # --- code in the keys ------------------------------------------------------------------------
 # The module holding each unit kind's work; its import closure is the kind's code.
 STAGE_MODULES = {"dataset": "data", "perturbed": "perturb", "checkpoint": "train",
-                 "prediction": "predict", "metrics": "evaluate", "runtime": "runtime"}
+                 "prediction": "predict", "metrics": "evaluate", "runtime": "runtime",
+                 "validity": "validity"}
 
 
 def stage_code(kind: str, *modules: str) -> str:
@@ -461,6 +465,26 @@ def _runtime_units(
              method=name, checkpoint=ckpt.key if ckpt else None, data=data.key)
 
 
+def _validity_unit(cfg: RunConfig, data: Unit, units: list[Unit]) -> None:
+    """The metric-validity unit when ``[run] validity_sequences`` > 0: the dataset's first
+    test sequences degraded at every level of ``metrics.validity.DEGRADATIONS`` and
+    evaluated with the run's metrics on the validity budget (``validity_options``)."""
+    from ..metrics.registry import METRICS
+    from ..metrics.validity import degradation_levels, validity_options
+
+    n = int(cfg.settings.get("validity_sequences", 0))
+    if n <= 0:
+        return
+    options = replace(validity_options(eval_options(cfg)),
+                      metrics=tuple(cfg.settings["metrics"]) or None)
+    ids = options.metric_ids()
+    inputs = {"data": data.key, "split": MAIN_SPLIT, "sequences": n, "seed": cfg.seed,
+              "levels": degradation_levels(), "options": asdict(options),
+              "versions": {m: METRICS.get(m).version for m in ids},
+              "code": stage_code("validity")}
+    _add(units, "validity", f"metric validity on {n} sequence(s)", inputs, [data.key])
+
+
 def dataset_name(cfg: RunConfig) -> str:
     """The ``dataset`` column: [run] dataset, else SynthGRAB or GRAB by the data's origin."""
     if cfg.settings["dataset"]:
@@ -483,8 +507,9 @@ def build_plan(cfg: RunConfig, cache: Cache) -> Plan:
     ckpts = _train_units(cfg, data, units)
     _predict_eval_units(cfg, units, data, sets, ckpts, dataset)
     _runtime_units(cfg, data, ckpts, units)
+    _validity_unit(cfg, data, units)
     order = {k: i for i, k in enumerate(("dataset", "perturbed", "checkpoint", "prediction",
-                                          "metrics", "runtime"))}
+                                          "metrics", "runtime", "validity"))}
     units.sort(key=lambda u: order[u.kind])  # stable: plan order within a kind
     cached = {u.key: cache.has(u.key) for u in units}
     return Plan(units, cached, data.key, dataset)

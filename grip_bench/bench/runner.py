@@ -2,7 +2,8 @@
 
 Stages (each a small function; units run in a deterministic order)::
 
-    data -> perturbed test sets -> train -> predict -> evaluate -> runtime -> report
+    data -> perturbed test sets -> train -> predict -> evaluate -> runtime -> validity
+    -> report
 
 A **profile** (``smoke``, ``default``, ``paper`` or any ``.toml`` path, loaded by
 ``grip_bench.profiles.load_profile``) is data, not a code branch: its sections set data
@@ -25,6 +26,7 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
         prediction   grab/... + tools/... + splits.json (a GRAB-layout folder)
         metrics      results.csv [frames.csv] evaluation.json contact_stats.npz
         runtime      runtime.json (timed predictions, rows of runtime.csv)
+        validity     validity.csv (metric validity: [run] validity_sequences > 0)
     OUT/cache/features/<code>/     GRIP's sensor features per data hash, shared by its variants
     OUT/results.csv                tidy results of every metric unit (docs/contract.md, "Results")
     OUT/frames.csv                 per-frame values (when [run] per_frame = true)
@@ -36,7 +38,8 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
         penetration_depths.npz     per-frame penetration depths (mm), the same methods
         contact_heatmaps.png  penetration_cdf.png  per_object_<metric>.png (mpvpe, iv)
         metric_validity.png        each metric's response to degraded ground truth
-    OUT/validity.{csv,json}        metric validity ([run] validity_sequences > 0) and its inputs
+    OUT/validity.csv               the validity unit's responses ([run] validity_sequences > 0)
+    OUT/validity.json              which unit they came from: its key and inputs
     OUT/tables/metric_validity.{md,csv}  the same as a table, each claim PASS / FAIL
     OUT/manifest.json              versions, git revision, profile, config, seeds, data hash,
                                    wall time per stage (docs/contract.md, "Results")
@@ -83,6 +86,7 @@ from .stages.perturb import make_perturbed
 from .stages.predict import predict_set
 from .stages.runtime import time_method
 from .stages.train import train_method
+from .stages.validity import VALIDITY_FILE, measure_validity
 
 
 # --- stage: report --------------------------------------------------------------------------
@@ -154,40 +158,35 @@ def assemble_figure_data(st: RunState) -> None:
         (figs / DEPTH_DATA).unlink()
 
 
-def stage_validity(st: RunState) -> None:
-    """``OUT/validity.csv`` when ``[run] validity_sequences`` > 0: each metric's response to
-    degraded ground truth (``metrics.validity``; physics off, 4 IV frames). Recomputed only
-    when its inputs (data hash, sequences, seed, the validity code's digest) changed; they
-    are kept in ``OUT/validity.json``."""
-    import json
+VALIDITY_REPORT = ("validity.csv", "validity.json", "tables/metric_validity.md",
+                   "tables/metric_validity.csv", "figures/metric_validity.png")
 
-    from ..core.io import atomic_write_text
-    from ..metrics.evaluate import EvalOptions
-    from ..metrics.validity import metric_validity
-    from .codehash import CodeIndex
 
-    n = int(st.cfg.settings.get("validity_sequences", 0))
-    out, meta = st.cfg.out / "validity.csv", st.cfg.out / "validity.json"
-    if n <= 0:
+def assemble_validity(st: RunState) -> None:
+    """``OUT/validity.csv`` (and ``validity.json``: the unit's key and inputs) from the
+    validity unit; without one (``[run] validity_sequences = 0``) the files of an earlier
+    run, and the table and figure drawn from them, are removed."""
+    from ..core.io import atomic_write_bytes, atomic_write_text, jsonable
+
+    out = st.cfg.out
+    units = st.plan.of("validity")
+    if not units:
+        for rel in VALIDITY_REPORT:
+            if (out / rel).exists():
+                (out / rel).unlink()
         return
-    inputs = {"data_hash": _data_hash(st), "sequences": n, "seed": st.cfg.seed,
-              "code": CodeIndex.installed().digest(["grip_bench.metrics.validity"])}
-    if out.is_file() and meta.is_file() and json.loads(meta.read_text()) == inputs:
-        st.log("validity: reused")
-        return
-    t0 = time.perf_counter()
-    df = metric_validity(str(st.data_dir(st.plan.data_key)), MAIN_SPLIT, n, st.cfg.seed,
-                         EvalOptions(physics=False, max_iv_frames=4), progress=st.cfg.progress)
-    atomic_write_text(out, df.to_csv(index=False))
-    atomic_write_text(meta, json.dumps(inputs, indent=1))
-    st.stage_times["validity"] = round(time.perf_counter() - t0, 3)
+    unit = units[0]
+    atomic_write_bytes(out / "validity.csv", (st.unit_dir(unit.key) / VALIDITY_FILE).read_bytes())
+    record = {"unit": unit.key, "inputs": unit.params["inputs"]}
+    atomic_write_text(out / "validity.json",
+                      json.dumps(jsonable(record), sort_keys=True, indent=1) + "\n")
 
 
 def stage_report(st: RunState) -> None:
     t0 = time.perf_counter()
     assemble_results(st)
     assemble_figure_data(st)
-    stage_validity(st)
+    assemble_validity(st)
     written = write_report(st.cfg.out, st.cfg.report_options())
     pngs = [p.name for p in written if p.suffix == ".png"]
     st.log(f"figures: {', '.join(pngs)}" if pngs else "figures: none drawn (no figure data)")
@@ -235,7 +234,8 @@ def summary_lines(st: RunState) -> list[str]:
 # --- the whole run --------------------------------------------------------------------------
 STAGE_FUNCTIONS = (("data", "dataset", make_dataset), ("perturb", "perturbed", make_perturbed),
                    ("train", "checkpoint", train_method), ("predict", "prediction", predict_set),
-                   ("evaluate", "metrics", evaluate_set), ("runtime", "runtime", time_method))
+                   ("evaluate", "metrics", evaluate_set), ("runtime", "runtime", time_method),
+                   ("validity", "validity", measure_validity))
 
 
 def start(cfg: RunConfig) -> RunState:

@@ -623,3 +623,81 @@ def _bar_labels(
     fig.legend(*ax.get_legend_handles_labels(), loc="upper center", ncol=min(n, _LEGEND_COLS),
                fontsize=_FONT, frameon=False, bbox_to_anchor=(0.5, 1 - 0.48 / h),
                borderaxespad=0.0, handlelength=1.5, columnspacing=1.2)
+
+
+# --- metric validity -----------------------------------------------------------------------
+VALIDITY_COLOURS = {"PASS": "#1b7837", "FAIL": "#c51b7d", "": "0.55"}  # green, magenta, grey
+_CLAIM_MARKS = {"up": "\u2191", "down": "\u2193", "flat": "="}
+
+
+def metric_validity_grid(
+    df: pd.DataFrame,
+    out_png: str | os.PathLike,
+    verdicts: Mapping[tuple[str, str], str],
+    labels: Mapping[str, str] | None = None,
+) -> Path:
+    """Small multiples of a metric-validity frame (``metrics.validity.metric_validity``
+    columns): one row per metric, one column per degradation, each cell the metric's mean
+    response over the levels (report unit) with its 95 % bootstrap band. A row shares its
+    y-axis, so a metric that stays flat under one degradation reads flat beside one that
+    moves it. Colour: the verdict of the cell's claim (``verdicts[(degradation, metric)]``,
+    "PASS" green, "FAIL" magenta; grey: no claim); the claim (up, down, flat) is marked in
+    the cell's corner. ``labels``: column titles by degradation id (default the id)."""
+    degs = list(dict.fromkeys(df["degradation"]))
+    metrics = list(dict.fromkeys(df["metric"]))
+    labels = labels or {}
+    fig = Figure(figsize=(1.45 * len(degs) + 1.3, 0.82 * len(metrics) + 1.3))
+    axes = fig.subplots(len(metrics), len(degs), squeeze=False, sharey="row")
+    for i, metric in enumerate(metrics):
+        rows = df[df["metric"] == metric]
+        unit = str(rows["unit"].iloc[0]) if "unit" in rows else ""
+        for j, deg in enumerate(degs):
+            ax = axes[i, j]
+            g = rows[rows["degradation"] == deg].sort_values("level")
+            ax.tick_params(labelsize=_FONT - 3, length=2, pad=1)
+            ax.grid(True, color="0.92", linewidth=0.5)
+            if i == 0:
+                ax.set_title(textwrap.fill(labels.get(deg, deg), 18), fontsize=_FONT - 2)
+            if j == 0:
+                name = _wrap_id(metric, 13)
+                ax.set_ylabel(f"{name}\n({unit})" if unit else name, fontsize=_FONT - 2)
+            if g.empty:
+                continue
+            x = g["level"].to_numpy(dtype=np.float64)
+            colour = VALIDITY_COLOURS.get(verdicts.get((deg, metric), ""), "0.55")
+            if {"ci_low", "ci_high"} <= set(g.columns):
+                ax.fill_between(x, g["ci_low"].to_numpy(dtype=np.float64),
+                                g["ci_high"].to_numpy(dtype=np.float64), color=colour,
+                                alpha=0.18, linewidth=0)
+            ax.plot(x, g["value"].to_numpy(dtype=np.float64), "-o", color=colour, ms=2.2,
+                    lw=1.1)
+            ax.set_xticks(x, [f"{v:g}" for v in x] if i == len(metrics) - 1 else [])
+            claim = str(g["expected"].iloc[0]) if "expected" in g else ""
+            if claim in _CLAIM_MARKS:
+                ax.text(0.04, 0.93, _CLAIM_MARKS[claim], transform=ax.transAxes, ha="left",
+                        va="top", fontsize=_FONT, color=colour, fontweight="bold")
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=VALIDITY_COLOURS[k], marker="o", ms=3, lw=1.1)
+               for k in ("PASS", "FAIL", "")]
+    fig.legend(handles, ["claim holds", "claim broken", "no claim (measured)"],
+               loc="lower center", ncol=3, fontsize=_FONT - 1, frameon=False)
+    fig.suptitle("Metric responses to degraded ground truth (mean over sequences, 95% "
+                 "bootstrap band; \u2191 \u2193 = : the claim)", fontsize=_FONT)
+    fig.tight_layout(rect=(0, 0.5 / fig.get_figheight(), 1, 1 - 0.1 / fig.get_figheight()),
+                     h_pad=0.3, w_pad=0.3)
+    return _save(fig, out_png)
+
+
+def _wrap_id(name: str, width: int) -> str:
+    """``name`` broken after underscores into lines of at most ``width`` characters (where
+    possible): ``contact_ratio_strict`` -> ``contact_ratio_\nstrict``."""
+    lines = [""]
+    for i, part in enumerate(name.split("_")):
+        piece = part if i == 0 else "_" + part
+        if lines[-1] and len(lines[-1]) + len(piece) > width:
+            lines[-1] += "_"
+            lines.append(part)
+        else:
+            lines[-1] += piece
+    return "\n".join(lines)

@@ -7,14 +7,13 @@ Reads ``OUT/validity.csv`` (columns of ``metric_validity``) and writes
 
 from __future__ import annotations
 
-import io
 import os
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from ..core.io import atomic_write_bytes, atomic_write_text
+from ..core.io import atomic_write_text
 
 MARK = {True: "PASS", False: "FAIL"}
 
@@ -39,9 +38,9 @@ def validity_markdown(df: pd.DataFrame) -> str:
     claims = _claims(df)
     lines = ["### Metric validity: responses to controlled degradations of ground truth", ""]
     for deg, g in df.groupby("degradation", sort=False):
-        d = DEGRADATIONS[deg]
+        d = DEGRADATIONS.get(deg)  # None: a degradation this version no longer has
         levels = sorted(g["level"].unique())
-        lines += [f"**{d.label}** (levels in {d.unit})", "",
+        lines += [f"**{d.label}** (levels in {d.unit})" if d else f"**{deg}**", "",
                   "| metric | unit | " + " | ".join(f"{lv:g}" for lv in levels)
                   + " | claim | verdict |",
                   "|---|---|" + "---|" * len(levels) + "---|---|"]
@@ -66,51 +65,14 @@ def validity_markdown(df: pd.DataFrame) -> str:
 
 
 def validity_figure(df: pd.DataFrame, out_png: str | os.PathLike) -> Path:
-    """One panel per degradation; each metric's response scaled by its largest magnitude over
-    all degradations, so a flat response stays flat (claimed metrics solid, the rest dotted)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """One small panel per (metric, degradation): rows are metrics on a shared y-axis,
+    coloured by the verdict of their claim (``report.figures.metric_validity_grid``)."""
     from ..metrics.validity import DEGRADATIONS
+    from .figures import metric_validity_grid
 
-    degs = list(dict.fromkeys(df["degradation"]))
-    metrics = list(dict.fromkeys(df["metric"]))
-    cmap = plt.get_cmap("tab20")
-    colour = {m: cmap(i % 20) for i, m in enumerate(metrics)}
-    scales = df.groupby("metric")["value"].apply(lambda v: np.nanmax(np.abs(v)) if
-                                                 np.isfinite(v).any() else 0.0)
-    cols = min(4, len(degs))
-    rows = int(np.ceil(len(degs) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.8 * rows + 0.9), squeeze=False)
-    for ax, deg in zip(axes.flat, degs, strict=False):
-        g = df[df["degradation"] == deg]
-        for metric, gm in g.groupby("metric", sort=False):
-            gm = gm.sort_values("level")
-            v = gm["value"].to_numpy(dtype=np.float64)
-            scale = float(scales[metric])
-            y = v / scale if scale > 0 else np.zeros_like(v)
-            claimed = bool(gm["expected"].iloc[0])
-            ax.plot(gm["level"], y, "-o" if claimed else ":", ms=3, lw=1.4 if claimed else 0.9,
-                    color=colour[metric], label=metric)
-        d = DEGRADATIONS[deg]
-        ax.set_title(d.label, fontsize=9)
-        ax.set_xlabel(d.unit, fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.set_ylim(-0.05, 1.05)
-    for ax in list(axes.flat)[len(degs):]:
-        ax.axis("off")
-    handles = [plt.Line2D([], [], color=colour[m], lw=1.4) for m in metrics]
-    fig.legend(handles, metrics, loc="lower center", ncol=min(7, len(metrics)), fontsize=7,
-               frameon=False)
-    fig.suptitle("Metric responses to degraded ground truth (each metric scaled to its largest "
-                 "value over all panels; solid = claimed)", fontsize=9)
-    fig.tight_layout(rect=(0, 0.08, 1, 0.96))
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=120, format="png", metadata={"Software": None})  # no varying metadata
-    plt.close(fig)
-    return atomic_write_bytes(out_png, buf.getvalue())
+    verdicts = {k: MARK[ok] for k, ok in _claims(df).items()}
+    labels = {d: f"{v.label} ({v.unit})" for d, v in DEGRADATIONS.items()}
+    return metric_validity_grid(df, out_png, verdicts, labels)
 
 
 def write_validity(out: str | os.PathLike) -> list[Path]:

@@ -27,12 +27,13 @@ METHODS = ["gt", "flat-input", "mean-pose", "perturbed-input"]
 PERTURBATIONS = ["T0.01", "R0.3"]
 METRICS = ["mpjpe", "mpvpe", "cc", "contact_ratio"]
 FORMATS = ("md", "csv", "tex", "html")
-KINDS = ("dataset", "perturbed", "prediction", "metrics", "runtime")
+KINDS = ("dataset", "perturbed", "prediction", "metrics", "runtime", "validity")
 FIGURES = ("heatmap_data.npz", "penetration_depths.npz", "contact_heatmaps.png",
            "penetration_cdf.png", "per_object_mpvpe.png", "metric_validity.png")
 # units of the tiny run: 1 dataset, 2 perturbed sets, 4 clean + 2 perturbed predictions
-# (perturbed-input, Table 3's "before" row, has no clean run), as many metric sets, 4 runtime units
-N_UNITS = 1 + 2 + 5 + 5 + 4
+# (perturbed-input, Table 3's "before" row, has no clean run), as many metric sets, 4 runtime
+# units, 1 metric-validity unit
+N_UNITS = 1 + 2 + 5 + 5 + 4 + 1
 
 PROFILE = f"""
 [run]
@@ -234,7 +235,7 @@ def test_report_rerenders_the_same_bytes(finished, tmp_path, capsys):
     assert main(["report", str(copy)]) == 0  # without the cache: nothing is recomputed
     assert _report_files(copy) == expected
     assert "Averaging: per sequence" in (copy / "tables" / "table2_ablation.md").read_text()
-    assert (finished / "validity.json").is_file()  # the runner's validity stage ran
+    assert (finished / "validity.json").is_file()  # the runner's validity unit ran
     assert "verdict" in (copy / "tables" / "metric_validity.md").read_text()
     assert main(["report", str(copy), "--averaging", "pooled"]) == 0
     pooled = (copy / "tables" / "table2_ablation.md").read_text()

@@ -1,18 +1,22 @@
 """Metric validity (grip_bench.metrics.validity): each degradation does what it says,
-measured, and on smoke-sized data every metric keeps its claim (docs/contract.md,
-"Metric validity")."""
+measured; level 0 is the ground truth; the draws are seeded; and on smoke-sized data every
+claim of EXPECTED holds (docs/contract.md, "Metric validity")."""
 
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from grip_bench.data.grab_io import read_grab
 from grip_bench.data.library import ObjectLibrary
 from grip_bench.data.posing import hand_poser
 from grip_bench.metrics import validity as V
-from grip_bench.metrics.evaluate import EvalOptions
+from grip_bench.metrics.evaluate import PHYSICS_METRICS, EvalOptions
+from grip_bench.metrics.registry import METRICS
 from tests.eval_fixtures import grasp_dataset
+
+RANDOM = ("wrist", "noise", "offset", "jitter")  # the degradations that draw noise
 
 
 @pytest.fixture(scope="module")
@@ -22,43 +26,113 @@ def data(tmp_path_factory):
     return root, ObjectLibrary(root), [read_grab(f) for f in files]
 
 
-def _verts(seq, side):
-    return hand_poser(seq, None).pose(side, seq.hand_params(side))
+@pytest.fixture(scope="module")
+def responses(data):
+    """Every degradation at every level on both sequences: physics off, 2 exact IV frames."""
+    root, _, _ = data
+    return V.metric_validity(str(root), "test", sequences=2, seed=0,
+                             options=EvalOptions(physics=False, max_iv_frames=2))
 
 
-def test_wrist_shift_moves_every_vertex_by_the_level(data):
+def _posed(seq, side):
+    """World vertices (T, V, 3) and joints (T, 21, 3) in float64."""
+    poser = hand_poser(seq, None)
+    poser.hands[side].double()
+    return poser.pose(side, seq.hand_params(side))
+
+
+def _hands(seq):
+    return {k: np.array(v) for side in ("right", "left") for k, v in
+            ((f"{side}.{key}", seq.hand_params(side)[key])
+             for key in ("global_orient", "hand_pose", "transl"))}
+
+
+# ------------------------------------------------------------------ each degradation
+def test_level_zero_is_the_ground_truth_and_the_input_is_never_modified(data):
     _, lib, seqs = data
-    gt = seqs[0]
+    for gt in seqs:
+        before = _hands(gt)
+        for d in V.DEGRADATIONS.values():
+            same = _hands(d.apply(gt, 0.0, lib, 0))
+            for k, v in before.items():
+                np.testing.assert_allclose(same[k], v, atol=1e-12, err_msg=f"{d.id} {k}")
+            d.apply(gt, d.levels[-1], lib, 0)
+            assert all(np.array_equal(_hands(gt)[k], v) for k, v in before.items()), d.id
+
+
+def test_every_degradation_is_seeded(data):
+    _, lib, seqs = data
+    gt = seqs[1]
+    for d in V.DEGRADATIONS.values():
+        a, b = _hands(d.apply(gt, d.levels[1], lib, 3)), _hands(d.apply(gt, d.levels[1], lib, 3))
+        assert all(np.array_equal(a[k], b[k]) for k in a), d.id
+        other = _hands(d.apply(gt, d.levels[1], lib, 4))
+        differs = any(not np.array_equal(a[k], other[k]) for k in a)
+        assert differs == (d.id in RANDOM), d.id  # deterministic ones ignore the seed
+
+
+def test_wrist_shift_moves_every_vertex_by_exactly_the_level(data):
+    _, lib, seqs = data
+    gt = seqs[1]
     out = V.wrist_shift(gt, 0.01, lib, seed=0)
     for side in ("right", "left"):
-        d = np.linalg.norm(_verts(out, side)[0] - _verts(gt, side)[0], axis=-1)
-        np.testing.assert_allclose(d, 0.01, atol=1e-6)  # float32 posing
-    same = V.wrist_shift(gt, 0.0, lib, seed=0)
-    np.testing.assert_array_equal(same.rhand["transl"], gt.rhand["transl"])
+        delta = _posed(out, side)[0] - _posed(gt, side)[0]  # (T, V, 3)
+        np.testing.assert_allclose(np.linalg.norm(delta, axis=-1), 0.01, atol=1e-9)
+        np.testing.assert_allclose(delta, np.broadcast_to(delta[0, 0], delta.shape), atol=1e-9)
 
 
-def test_push_and_pull_move_the_contact_region_along_the_normal(data):
+def test_push_weight_is_one_in_contact_zero_beyond_2cm_and_smooth():
+    d = np.linspace(0.0, 0.03, 3001)
+    w = V.push_weight(d)
+    assert np.all(w[d <= 0.005] == 1.0) and np.all(w[d >= 0.02] == 0.0)
+    assert np.all(np.diff(w) <= 0)  # fades out monotonically with the distance
+    slope = np.abs(np.diff(w) / np.diff(d))
+    peak = slope.max()  # C1: the slope vanishes at both ends of the fade (no kink)
+    assert slope[(d[1:] > 0.0049) & (d[1:] < 0.0052)].max() < 0.06 * peak
+    assert slope[(d[1:] > 0.0198) & (d[1:] < 0.0201)].max() < 0.06 * peak
+
+
+def test_push_and_pull_move_the_contact_region_along_its_normal(data):
+    """Measured with the distance field on the solid cylinder (the mug's handle is thinner
+    than a push): on held frames the hand moves rigidly by exactly 5 mm along the contact
+    normal; the contact vertices facing that normal go ~5 mm deeper (push) or shallower
+    (pull); the deepest point goes ~5 mm deeper; a hand beyond 2 cm is untouched."""
     _, lib, seqs = data
-    gt = seqs[1]  # the solid cylinder (the mug's wall is thinner than a push)
+    gt = seqs[1]
     field = lib.field(gt.obj_name)
+    side = "right"
+    w, n = V.contact_normals(gt, side, lib)
+    full = np.flatnonzero(w == 1.0)
+    assert len(full) > 30
+    np.testing.assert_allclose(np.linalg.norm(n[full], axis=1), 1.0, atol=1e-9)
 
-    def sd(seq):
-        local = lib.world_to_object(seq, _verts(seq, "right")[0])
-        return np.asarray(field.exact_signed_distance(local))
+    def local(seq):
+        return lib.world_to_object(seq, _posed(seq, side)[0])[full]
 
-    base = sd(gt)
-    near = base.min(axis=1) < 0.005  # frames where the hand touches
-    contact = base <= 0.005
-    pushed, pulled = sd(V.push_in(gt, 0.005, lib, 0)), sd(V.pull_off(gt, 0.005, lib, 0))
-    # the deepest vertex goes about 5 mm deeper (4.8 mm measured: the mean normal of a
-    # wrapping contact region is not every vertex's normal)
-    assert np.all(pushed.min(axis=1)[near] < base.min(axis=1)[near] - 0.004)
+    def sd(points):
+        return np.asarray(field.exact_signed_distance(points.reshape(-1, 3))).reshape(
+            points.shape[:2])
 
-    def mean_contact(d):
-        return np.array([d[t][contact[t]].mean() for t in np.flatnonzero(near)])
-
-    assert np.all(mean_contact(pulled) > mean_contact(base) + 0.001)
-    assert np.all(mean_contact(pushed) < mean_contact(base) - 0.001)
+    g = local(gt)
+    sd_gt = sd(g)
+    facing = np.einsum("tvk,tk->tv", np.asarray(field.gradient(g.reshape(-1, 3))).reshape(
+        g.shape), n[full]) > 0.9
+    contact = (np.abs(sd_gt) <= 0.002) & facing
+    assert contact.sum() > 100
+    for fn, sign in ((V.push_in, -1.0), (V.pull_off, 1.0)):
+        moved = fn(gt, 0.005, lib, 0)
+        p = local(moved)
+        shift = p - g  # rigid: the same 5 mm along the normal for every vertex
+        expected = np.broadcast_to(sign * 0.005 * n[full][:, None], shift.shape)
+        np.testing.assert_allclose(shift, expected, atol=1e-9)
+        change = sign * (sd(p) - sd_gt)[contact]
+        assert 0.0043 < change.mean() <= 0.00501, (fn.__name__, change.mean())
+        if sign < 0:
+            assert np.median(sd_gt.min(axis=1) - sd(p).min(axis=1)) > 0.004
+    # the mug's left hand stays parked half a metre away (weight 0): never moved
+    mug = seqs[0]
+    np.testing.assert_array_equal(V.push_in(mug, 0.01, lib, 0).lhand["transl"],
+                                  mug.lhand["transl"])
 
 
 def test_closing_brings_fingertips_to_the_palm_and_opening_away(data):
@@ -66,46 +140,89 @@ def test_closing_brings_fingertips_to_the_palm_and_opening_away(data):
     gt = seqs[0]
 
     def spread(seq):
-        j = _verts(seq, "right")[1]  # (T, 21, 3): 16 joints, then 5 tips
+        j = _posed(seq, "right")[1]  # (T, 21, 3): 16 joints, then 5 tips
         palm = j[:, [0, 1, 4, 7, 10]].mean(axis=1, keepdims=True)
         return np.linalg.norm(j[:, 16:] - palm, axis=-1).mean()
 
-    assert spread(V.finger_close(gt, 0.3, lib, 0)) < spread(gt) < spread(V.finger_open(gt, 0.3,
-                                                                                        lib, 0))
+    closed = [spread(V.finger_close(gt, a, lib, 0)) for a in (0.1, 0.2, 0.4)]
+    opened = [spread(V.finger_open(gt, a, lib, 0)) for a in (0.1, 0.2, 0.4)]
+    base = spread(gt)
+    assert base > closed[0] > closed[1] > closed[2]
+    assert base < opened[0] < opened[1] < opened[2]
 
 
-def test_noise_is_seeded_and_scales_one_draw(data):
+def test_noise_offset_and_jitter_scale_one_draw(data):
     _, lib, seqs = data
     gt = seqs[1]
-    a, b = V.finger_noise(gt, 0.1, lib, 0), V.finger_noise(gt, 0.1, lib, 0)
-    np.testing.assert_array_equal(a.rhand["hand_pose"], b.rhand["hand_pose"])
-    c = V.finger_noise(gt, 0.2, lib, 0)
-    np.testing.assert_allclose(c.rhand["hand_pose"] - gt.rhand["hand_pose"],
-                               2 * (a.rhand["hand_pose"] - gt.rhand["hand_pose"]), atol=1e-12)
-    d = V.temporal_jitter(gt, 0.001, lib, 1)
-    assert not np.array_equal(d.rhand["transl"], V.temporal_jitter(gt, 0.001, lib, 0)
-                              .rhand["transl"])
+    for fn, key in ((V.finger_noise, "hand_pose"), (V.finger_offset, "hand_pose"),
+                    (V.temporal_jitter, "transl")):
+        a = fn(gt, 0.1, lib, 0).rhand[key] - gt.rhand[key]
+        b = fn(gt, 0.2, lib, 0).rhand[key] - gt.rhand[key]
+        np.testing.assert_allclose(b, 2 * a, atol=1e-12)
+        assert 0.07 < a.std() < 0.13, fn.__name__
+    offset = V.finger_offset(gt, 0.1, lib, 0).rhand["hand_pose"] - gt.rhand["hand_pose"]
+    np.testing.assert_allclose(offset, np.broadcast_to(offset[0], offset.shape), atol=1e-12)
+    noise = V.finger_noise(gt, 0.1, lib, 0).rhand["hand_pose"] - gt.rhand["hand_pose"]
+    assert np.abs(np.diff(noise, axis=0)).mean() > 0.05  # a new draw every frame
 
 
-def test_every_metric_keeps_its_claim_on_smoke_data(data):
-    root, _, _ = data
-    df = V.metric_validity(str(root), "test", sequences=2, seed=0,
-                           options=EvalOptions(physics=False, max_iv_frames=2))
-    assert set(df["degradation"]) == set(V.DEGRADATIONS)
-    claimed = df[df["expected"] != ""]
-    assert len(claimed) >= 4 * sum(len(v) for v in V.EXPECTED.values()) * 0.9
+def test_levels_can_be_overridden_and_zero_is_always_measured():
+    lv = V.degradation_levels({"wrist": (0.02, 0.01)}, ["wrist", "push"])
+    assert lv == {"wrist": (0.0, 0.01, 0.02), "push": V.DEGRADATIONS["push"].levels}
+    with pytest.raises(Exception, match="unknown degradation"):
+        V.degradation_levels({"twist": (0.1,)})
+
+
+# ------------------------------------------------------------------ the claims
+def test_every_non_physics_metric_has_a_claim_or_a_reason_per_degradation():
+    for deg in V.DEGRADATIONS:
+        for m in METRICS.names():
+            if m in PHYSICS_METRICS:
+                continue
+            pair = (deg, m)
+            assert (pair in V.EXPECTED) != (pair in V.NO_CLAIM), pair
+    assert set(V.EXPECTED.values()) <= {"up", "down", "flat"}
+    assert {d for d, _ in [*V.EXPECTED, *V.NO_CLAIM]} <= set(V.DEGRADATIONS)
+
+
+def test_every_claim_holds_on_smoke_data(responses):
+    df = responses
     assert V.check_validity(df) == []
+    assert set(df["degradation"]) == set(V.DEGRADATIONS)
+    assert set(df["n_sequences"]) == {2}
+    registered = [m for m in METRICS.names() if m not in PHYSICS_METRICS]
+    assert set(df["metric"]) == set(registered)
+    for (deg, m), g in df.groupby(["degradation", "metric"]):
+        assert list(g["level"]) == [lv * V.DEGRADATIONS[deg].scale
+                                    for lv in V.DEGRADATIONS[deg].levels]
+        assert (g["expected"].iloc[0] or "") == V.claim(deg, m)
+    judged = df[df["expected"] != ""]
+    assert {(d, m) for d, m in zip(judged["degradation"], judged["metric"], strict=True)} == {
+        p for p in V.EXPECTED if p[1] in registered}
+    gt = df[(df["level"] == 0) & df["metric"].isin(["mpjpe", "mpvpe", "cc", "accel_err"])]
+    assert np.all(gt["value"] == 0.0)
 
 
-def test_check_validity_catches_broken_claims():
-    import pandas as pd
-
-    rows = [("wrist", lv, "mpjpe", "mm", v, "up") for lv, v in ((0, 0.0), (5, 4.0), (10, 3.0),
-                                                                  (20, 9.0))]
-    rows += [("wrist", lv, "jitter", "m/s2", v, "flat") for lv, v in ((0, 1.0), (5, 1.0),
-                                                                        (10, 1.5), (20, 1.0))]
-    df = pd.DataFrame(rows, columns=["degradation", "level", "metric", "unit", "value",
-                                     "expected"])
+def test_check_validity_catches_broken_claims_and_judges_only_claims():
+    rows = [("wrist", lv, "mpjpe", "mm", v) for lv, v in ((0, 0.0), (5, 4.0), (10, 3.0),
+                                                            (20, 9.0))]
+    rows += [("wrist", lv, "jitter", "m/s2", v) for lv, v in ((0, 1.0), (5, 1.0), (10, 1.5),
+                                                                (20, 1.0))]
+    # ties within the tolerance (0.05 mm) are monotone; a degraded input better than GT is not
+    rows += [("noise", lv, "mpvpe", "mm", v) for lv, v in ((0, 0.0), (0.1, 2.0), (0.25, 1.97),
+                                                             (0.5, 5.0))]
+    rows += [("noise", lv, "cc", "mm", v) for lv, v in ((0, 1.0), (0.1, 0.5), (0.25, 2.0),
+                                                          (0.5, 3.0))]
+    # an unclaimed metric (a physics one) is tabulated, never judged
+    rows += [("wrist", lv, "sim_stable", "%", v) for lv, v in ((0, 10.0), (5, 90.0), (10, 0.0),
+                                                                 (20, 50.0))]
+    df = pd.DataFrame(rows, columns=["degradation", "level", "metric", "unit", "value"])
+    df["expected"] = [V.claim(d, m) for d, m in zip(df["degradation"], df["metric"],
+                                                      strict=True)]
     bad = V.check_validity(df)
     assert any(b.startswith("mpjpe under wrist: not up") for b in bad)
     assert any(b.startswith("jitter under wrist: not flat") for b in bad)
+    assert any(b.startswith("cc under noise: not up") for b in bad)
+    assert "cc: a degraded input scores better than the ground truth" in bad
+    assert not any(b.startswith(("mpvpe", "sim_stable")) for b in bad)
+    assert len(bad) == 4
