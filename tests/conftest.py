@@ -31,3 +31,11 @@ def hand():
     from grip_bench.bodies import ProceduralHand
 
     return ProceduralHand("right")
+
+
+def pytest_benchmark_update_machine_info(config, machine_info):
+    """Every benchmark table records the processor's model and the flags that decide GEMM
+    speed (``grip_bench.core.cpu``), beside pytest-benchmark's own cpu fields."""
+    from grip_bench.core.cpu import cpu_info
+
+    machine_info["grip_bench_cpu"] = cpu_info().as_dict()

@@ -22,9 +22,41 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from ..core.cpu import CpuInfo, cpu_info
 from ..nn.blocks import ResBlock, ResMLP
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16}
+PRECISION_CHOICES = ("auto", *PRECISIONS)
+
+
+def native_bf16(device: str = "cpu", cpu: CpuInfo | None = None) -> bool:
+    """Whether ``device`` runs bfloat16 GEMMs in hardware (CPU: AVX512-BF16, AMX-BF16 or
+    Arm BF16, from ``cpu`` or this machine's :func:`core.cpu.cpu_info`; CUDA: torch's
+    ``is_bf16_supported``)."""
+    if str(device).startswith("cuda"):
+        return bool(torch.cuda.is_available() and torch.cuda.is_bf16_supported())
+    return (cpu or cpu_info()).native_bf16
+
+
+def resolve_precision(requested: str, device: str = "cpu",
+                      cpu: CpuInfo | None = None) -> tuple[str, str | None]:
+    """(precision to run, a warning or None) for ``--precision`` ``requested``.
+
+    ``auto`` picks bf16 where the hardware runs it natively and fp32 elsewhere (emulated
+    bf16 GEMMs are ~4x slower than fp32). An explicit ``bf16`` is honoured, with a warning
+    when it is emulated; ``fp32`` is always honoured.
+    """
+    if requested not in PRECISION_CHOICES:
+        raise ValueError(f"precision must be one of {PRECISION_CHOICES}, got {requested!r}")
+    native = native_bf16(device, cpu)
+    if requested == "auto":
+        return ("bf16" if native else "fp32"), None
+    if requested == "bf16" and not native:
+        where = "this GPU" if str(device).startswith("cuda") else \
+            f"this CPU ({(cpu or cpu_info()).model})"
+        return "bf16", (f"bf16 is emulated on {where}: expect it slower than fp32 "
+                        "(--precision auto picks fp32 here)")
+    return requested, None
 
 
 def _bn_affine(bn: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:

@@ -16,6 +16,7 @@ from collections.abc import Iterable
 from importlib import metadata
 from pathlib import Path
 
+from ..core.cpu import cpu_info
 from ..core.errors import InputError
 from ..core.io import atomic_write_text, jsonable
 from ..core.version import __version__
@@ -58,9 +59,12 @@ def git_info(path: str | os.PathLike | None = None) -> dict:
 
 
 def platform_info() -> dict:
+    """The OS, the processor (model, the flags that decide GEMM speed, native bf16 / int8:
+    ``core.cpu``) and the core count: timings mean nothing without them."""
     return {"system": platform.system(), "release": platform.release(),
             "machine": platform.machine(), "python_implementation":
-            platform.python_implementation(), "cpu_count": os.cpu_count()}
+            platform.python_implementation(), "cpu_count": os.cpu_count(),
+            "cpu": cpu_info().as_dict()}
 
 
 def peak_memory_mib() -> dict:
