@@ -4,7 +4,11 @@
 - :func:`write_dataset`: a ``DATA/`` folder (grab/s<k>/*.npz, contact meshes, splits.json).
 - :func:`write_real_grab_file`: a file shaped like a released GRAB file (120 fps,
   24 PCA hand coefficients, no ``body_model`` key), written with plain ``np.savez``.
-- :class:`FakeMano`: a stand-in MANO backend with random orthonormal PCA components.
+- :class:`FakeMano`: a stand-in MANO backend with random orthonormal PCA components and a
+  MANO-layout model per side (:func:`mano_model_arrays`: 778-vertex tube whose rest wrist
+  J0 lies 13 cm from the origin), written as model files by :func:`write_mano_models`.
+- :func:`write_subject_templates`: the subject hand templates a GRAB file names, as .ply.
+- :func:`full_size_grab_arrays`: a file shaped like a full-size GRAB sequence (memory tests).
 """
 
 from __future__ import annotations
@@ -91,18 +95,110 @@ def write_dataset(root: Path, specs, *, T: int = 20, splits: dict | None = None)
 
 
 class FakeMano:
-    """MANO stand-in: orthonormal 45x45 'components' and a fixed mean pose."""
+    """MANO stand-in: orthonormal 45x45 'components', a fixed mean pose, and a MANO-layout
+    model per side (``model[side]``, :func:`mano_model_arrays`) for the rest wrist J0."""
 
     def __init__(self, seed: int = 7):
         rng = np.random.default_rng(seed)
         self.components = {s: np.linalg.qr(rng.normal(size=(45, 45)))[0] for s in ("right", "left")}
         self.mean = {s: rng.normal(0, 0.1, size=45) for s in ("right", "left")}
+        self.model = {s: mano_model_arrays(s, seed) for s in ("right", "left")}
+        for s in ("right", "left"):
+            self.model[s].update(hands_components=self.components[s], hands_mean=self.mean[s])
 
     def expand_pca(self, side, coeffs):
         return coeffs @ self.components[side][: coeffs.shape[1]]
 
     def hands_mean(self, side):
         return self.mean[side]
+
+    def rest_wrist(self, side, v_template=None):
+        m = self.model[side]
+        return m["J_regressor"][0] @ (m["v_template"] if v_template is None else v_template)
+
+
+# MANO's rest wrist J0 in the fixture models (right hand; the left is its x-mirror): 13 cm
+# from the origin, so reading GRAB's transl as the wrist would be off by that much.
+FIXTURE_WRIST = (0.11, 0.06, -0.03)
+# A subject's template: the model's, moved by this (right; left mirrored), so J0 moves too.
+SUBJECT_SHIFT = (0.012, -0.008, 0.005)
+
+
+def hand_tube(side: str = "right", n_rings: int = 37, n_around: int = 21):
+    """A MANO-sized hand stand-in (778 vertices): an outward-oriented tube from the wrist
+    ring (at :data:`FIXTURE_WRIST`, open) along -x (right; +x left) to a closed tip."""
+    t = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
+    rings = [np.stack([np.full(n_around, -0.005 * k), 0.03 * np.cos(t), 0.02 * np.sin(t)], 1)
+             for k in range(n_rings)]
+    verts = np.concatenate([*rings, [[-0.005 * n_rings, 0.0, 0.0]]])
+    faces = []
+    for k in range(n_rings - 1):
+        for i in range(n_around):
+            a, b = k * n_around + i, k * n_around + (i + 1) % n_around
+            faces += [(a, b + n_around, b), (a, a + n_around, b + n_around)]
+    last, pole = (n_rings - 1) * n_around, len(verts) - 1
+    faces += [(last + i, pole, last + (i + 1) % n_around) for i in range(n_around)]
+    faces = np.array(faces)
+    mesh = trimesh.Trimesh(verts, faces, process=False)
+    if mesh.face_normals[0][1:] @ verts[faces[0]].mean(0)[1:] < 0:  # side walls face outward
+        faces = faces[:, ::-1]
+    verts = verts + np.asarray(FIXTURE_WRIST)
+    if side == "left":
+        verts, faces = verts * np.array([-1.0, 1.0, 1.0]), faces[:, ::-1]
+    return verts.astype(np.float32), np.ascontiguousarray(faces)
+
+
+def mano_model_arrays(side: str = "right", seed: int = 7) -> dict:
+    """A MANO_{RIGHT,LEFT} model's keys and shapes (random skinning, 10 shape directions)
+    on :func:`hand_tube`; the wrist joint regresses the wrist ring's centre."""
+    from grip_bench.bodies.layouts import MANO_PARENTS
+
+    rng = np.random.default_rng([seed, side == "right"])
+    verts, faces = hand_tube(side)
+    n = len(verts)
+    weights = rng.random((n, 16)) ** 4
+    weights /= weights.sum(1, keepdims=True)
+    reg = np.zeros((16, n))
+    reg[0, :21] = 1.0 / 21  # the wrist ring
+    for j in range(1, 16):
+        reg[j, rng.choice(n, 4, replace=False)] = 0.25
+    comps = np.linalg.qr(rng.normal(size=(45, 45)))[0]
+    return {
+        "v_template": verts.astype(np.float64), "f": faces.astype(np.uint32), "weights": weights,
+        "J_regressor": reg,
+        "kintree_table": np.array([[2**32 - 1, *MANO_PARENTS[1:]], list(range(16))], np.int64),
+        "posedirs": rng.normal(scale=1e-4, size=(n, 3, 135)),
+        "shapedirs": rng.normal(scale=1e-3, size=(n, 3, 10)),
+        "hands_components": comps, "hands_mean": rng.normal(scale=0.1, size=45),
+    }
+
+
+def write_mano_models(model_dir: Path, mano: FakeMano) -> Path:
+    """``model_dir/mano/MANO_{RIGHT,LEFT}.npz`` holding ``mano``'s models; returns model_dir."""
+    model_dir = Path(model_dir)
+    (model_dir / "mano").mkdir(parents=True, exist_ok=True)
+    for side in ("right", "left"):
+        np.savez(model_dir / "mano" / f"MANO_{side.upper()}.npz", **mano.model[side])
+    return model_dir
+
+
+def subject_template(mano: FakeMano, side: str) -> np.ndarray:
+    """The fixture subject's hand template ``(778, 3)`` float32: the model's, shifted."""
+    shift = np.asarray(SUBJECT_SHIFT) * (np.array([-1.0, 1.0, 1.0]) if side == "left" else 1.0)
+    return (mano.model[side]["v_template"] + shift).astype(np.float32)
+
+
+def write_subject_templates(root: Path, arrays: dict, mano: FakeMano) -> dict[str, np.ndarray]:
+    """Write the hand templates the GRAB file members ``arrays`` name (``rhand``/``lhand``
+    ``vtemp``, relative to the data root ``root``) as .ply; returns J0 (3,) per side."""
+    j0 = {}
+    for part, side in (("rhand", "right"), ("lhand", "left")):
+        verts = subject_template(mano, side)
+        path = Path(root) / arrays[part].item()["vtemp"]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        trimesh.Trimesh(verts, mano.model[side]["f"], process=False).export(path)
+        j0[side] = mano.rest_wrist(side, verts)
+    return j0
 
 
 def _obj(value):
@@ -148,3 +244,19 @@ def write_npz(path: Path, arrays: dict) -> Path:
     with open(path, "wb") as f:
         np.savez(f, **arrays)
     return path
+
+
+def full_size_grab_arrays(T: int = 2310, n_obj_verts: int = 48370, n_body_verts: int = 10475,
+                          contact_dtype=np.int8, seed: int = 0, n_comps: int = 24) -> dict:
+    """Members of a full-size GRAB sequence: 120 fps, PCA hands, sparse contact labels on a
+    ``(T, n_obj_verts)`` object and a ``(T, n_body_verts)`` body (GRAB's largest arrays)."""
+    raw = real_grab_arrays(T=T, n_comps=n_comps, seed=seed + 1)
+    rng = np.random.default_rng(seed)
+    contact = {}
+    for key, n, label in (("object", n_obj_verts, contact_label("right_index3")),
+                          ("body", n_body_verts, 1)):
+        a = np.zeros((T, n), contact_dtype)
+        a[rng.random((T, n)) < 0.002] = label
+        contact[key] = a
+    raw["contact"] = _obj(contact)
+    return raw

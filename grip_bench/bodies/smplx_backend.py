@@ -46,7 +46,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "MODEL_PATH_ENV", "MANO_TIP_IDS", "MANOHand", "SMPLXBody", "SMPLXOutput",
-    "expand_pca", "find_model_file", "load_model_data", "resolve_model_path", "seal_faces",
+    "expand_pca", "find_model_file", "load_model_data", "mano_rest_wrist", "resolve_model_path",
+    "seal_faces",
 ]
 
 MODEL_PATH_ENV = "GRIP_BENCH_MODEL_PATH"
@@ -133,6 +134,25 @@ def load_model_data(path: str | os.PathLike, required: dict[str, tuple | None] |
             raise InputError(f"expected shape (..., {', '.join(map(str, tail))}), got {shape}",
                              f"{path}: {key}")
     return data
+
+
+def mano_rest_wrist(data: dict[str, np.ndarray], v_template: np.ndarray | None = None,
+                    source: str | os.PathLike = "MANO") -> np.ndarray:
+    """MANO's rest wrist joint ``J0 = J_regressor[0] @ v_template`` (3,) float64, m.
+
+    ``data``: a MANO file's arrays (:func:`load_model_data`); ``v_template (V, 3)``: a
+    subject's personal template (GRAB's ``rhand_vtemp``), None for the model's own. MANO
+    rotates the hand about this point, so the world wrist is ``J0 + transl`` (GRAB).
+    """
+    for key in ("J_regressor", "v_template"):
+        if key not in data:
+            raise InputError("missing model array", f"{source}: {key}")
+    reg = np.asarray(data["J_regressor"], np.float64)
+    verts = np.asarray(data["v_template"] if v_template is None else v_template, np.float64)
+    if reg.ndim != 2 or verts.ndim != 2 or verts.shape[1] != 3 or reg.shape[1] != len(verts):
+        raise InputError(f"joint regressor {reg.shape} does not fit a template of shape "
+                         f"{verts.shape}", f"{source}: J_regressor")
+    return reg[0] @ verts
 
 
 # -------------------------------------------------------------- helpers
@@ -248,7 +268,8 @@ class MANOHand(nn.Module):
     v_template (V, 3) an optional personal template (GRAB ships one per subject).
     ``wrist_origin=False`` keeps smplx/GRAB semantics (the wrist is at
     ``J_0(betas) + transl``); ``True`` makes ``transl`` the wrist position, as for
-    :class:`ProceduralHand`.
+    :class:`ProceduralHand` and every :class:`Sequence` (``data.posing`` poses with it;
+    ``data.grab_io`` converts GRAB's files at the boundary, docs/real_grab.md).
     """
 
     def __init__(self, side: str = "right", model_path: str | os.PathLike | None = None,

@@ -11,7 +11,6 @@ keypoints (T, 21, 3); ``poser.faces(side)`` the watertight faces.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -69,7 +68,9 @@ class MANOPoser:
     """Poses MANO hands through the smplx backend (sealed, hence watertight, meshes).
 
     A :class:`Sequence` holds absolute full poses, so the layers use 45 components and
-    ``flat_hand_mean=True``; GRAB's ``transl`` semantics are kept (``wrist_origin=False``).
+    ``flat_hand_mean=True``; its hand ``transl`` is the wrist position (``read_grab`` added
+    MANO's rest wrist J0 to GRAB's), so the layers pose with ``wrist_origin=True``: the
+    vertices are ``R (v - J0) + transl``, where GRAB's own semantics put them.
     The subject's personal hand template (``rhand_vtemp``) is used when the file names one.
     """
 
@@ -80,7 +81,7 @@ class MANOPoser:
         from ..bodies.smplx_backend import MANOHand
 
         self.hands = {side: MANOHand(side, model_path, n_comps=45, flat_hand_mean=True,
-                                     v_template=_vtemp(seq, side))
+                                     v_template=_vtemp(seq, side), wrist_origin=True)
                       for side in ("right", "left")}
 
     def faces(self, side: str) -> np.ndarray:
@@ -102,19 +103,12 @@ class MANOPoser:
 
 def _vtemp(seq: Sequence, side: str) -> np.ndarray | None:
     """The subject's hand template vertices (V, 3) named by the file, or None (mean shape)."""
-    import trimesh
+    from ..data.grab_io import data_root_of, load_hand_template
 
-    from ..data.grab_io import data_root_of
-
-    rel = getattr(seq, f"{side[0]}hand_vtemp")
-    if not rel:
-        return None
+    part = f"{side[0]}hand"
     root = data_root_of(seq.source) if seq.source else None
-    path = Path(rel) if Path(rel).is_absolute() or root is None else root / rel
-    if not path.is_file():
-        raise InputError(f"subject hand template not found: {path}",
-                         f"{seq.source}: {side[0]}hand.vtemp")
-    return np.asarray(trimesh.load(path, force="mesh", process=False).vertices, np.float32)
+    return load_hand_template(getattr(seq, f"{part}_vtemp"), [root],
+                              f"{seq.source}: {part}.vtemp")
 
 
 def hand_poser(

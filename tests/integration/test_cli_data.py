@@ -16,7 +16,9 @@ from tests.grab_fixtures import (
     make_sequence,
     real_grab_arrays,
     write_dataset,
+    write_mano_models,
     write_npz,
+    write_subject_templates,
 )
 
 
@@ -83,12 +85,10 @@ def test_info_on_a_dataset(tmp_path, capsys):
 
 def test_info_with_model_path_expands_pca(tmp_path, capsys):
     mano = FakeMano()
-    models = tmp_path / "models" / "mano"
-    models.mkdir(parents=True)
-    for side in ("right", "left"):
-        np.savez(models / f"MANO_{side.upper()}.npz", hands_components=mano.components[side],
-                 hands_mean=mano.mean[side])
-    path = write_npz(tmp_path / "grab" / "s1" / "mug_lift.npz", real_grab_arrays(T=9))
+    write_mano_models(tmp_path / "models", mano)
+    raw = real_grab_arrays(T=9)
+    path = write_npz(tmp_path / "grab" / "s1" / "mug_lift.npz", raw)
+    write_subject_templates(tmp_path, raw, mano)  # J0 of the subject's hands, for transl
     code, _, err = _run(capsys, "data", "info", path)
     assert code == 1 and "--model-path" in err
     code, out, err = _run(

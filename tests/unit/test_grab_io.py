@@ -26,6 +26,7 @@ from tests.grab_fixtures import (
     real_grab_arrays,
     write_dataset,
     write_npz,
+    write_subject_templates,
 )
 
 
@@ -116,11 +117,13 @@ def test_real_grab_file_is_subsampled_and_expanded(tmp_path):
     raw = real_grab_arrays(T=41)
     path = write_npz(tmp_path / "grab" / "s1" / "mug_lift.npz", raw)
     mano = FakeMano()
+    j0 = write_subject_templates(tmp_path, raw, mano)
     seq = read_grab(path, mano_backend=mano)
     assert seq.fps == 30.0 and seq.n_frames == 11  # frames 0, 4, ..., 40
     assert seq.body_model == "smplx"  # no body_model key: a real GRAB file
     rh = raw["rhand"].item()["params"]
-    np.testing.assert_array_equal(seq.rhand["transl"], rh["transl"][::4])
+    # GRAB's transl + MANO's rest wrist J0 = the wrist (tests/unit/test_grab_wrist.py)
+    np.testing.assert_allclose(seq.rhand["transl"], rh["transl"][::4] + j0["right"], atol=1e-7)
     np.testing.assert_allclose(
         seq.rhand["hand_pose"], mano.expand_pca("right", rh["hand_pose"][::4]), rtol=1e-5, atol=1e-6
     )
@@ -140,8 +143,10 @@ def test_real_grab_file_is_subsampled_and_expanded(tmp_path):
 
 
 def test_flat_hand_mean_override(tmp_path):
-    path = write_npz(tmp_path / "g.npz", real_grab_arrays(T=8))
+    raw = real_grab_arrays(T=8)
+    path = write_npz(tmp_path / "grab" / "s1" / "g.npz", raw)
     mano = FakeMano()
+    write_subject_templates(tmp_path, raw, mano)
     default = read_grab(path, mano_backend=mano)  # GRAB: MANO hands flat, body not
     flat = read_grab(path, mano_backend=mano, flat_hand_mean=True)
     meaned = read_grab(path, mano_backend=mano, flat_hand_mean=False)
@@ -172,11 +177,15 @@ def test_pca_without_backend_is_a_clear_error(tmp_path):
 
 def test_full_pose_real_file(tmp_path):
     raw = real_grab_arrays(T=8, n_comps=45, framerate=30.0)
-    path = write_npz(tmp_path / "g.npz", raw)
+    path = write_npz(tmp_path / "grab" / "s1" / "g.npz", raw)
     with pytest.raises(MissingModelError, match="mean hand") as e:
         read_grab(path)  # the body's hand poses are offsets from the mean: needs MANO
     assert e.value.where == f"{path}: body.params.right_hand_pose"
-    seq = read_grab(path, flat_hand_mean=True)
+    with pytest.raises(MissingModelError, match="J0") as e:
+        read_grab(path, flat_hand_mean=True)  # GRAB's transl is not the wrist: needs MANO
+    assert e.value.where == f"{path}: rhand.params.transl"
+    write_subject_templates(tmp_path, raw, FakeMano())
+    seq = read_grab(path, flat_hand_mean=True, mano_backend=FakeMano())
     assert seq.n_frames == 8
     np.testing.assert_array_equal(
         seq.rhand["hand_pose"], raw["rhand"].item()["params"]["hand_pose"]
