@@ -20,14 +20,20 @@ if TYPE_CHECKING:
     import trimesh
 
     from ..geometry.distance import DistanceField
+    from ..geometry.repair import MeshOptions
     from .sequence import Sequence
 
 
 class ObjectLibrary:
-    """Canonical object meshes and distance fields of one dataset directory."""
+    """Canonical object meshes and distance fields of one dataset directory.
 
-    def __init__(self, data_dir: str | Path):
+    mesh_options: how meshes are taken in (``--mesh-scale``, ``--accept-repair``; default:
+    no scale, the default repair tolerance; docs/meshes.md).
+    """
+
+    def __init__(self, data_dir: str | Path, mesh_options: MeshOptions | None = None):
         self.data_dir = Path(data_dir)
+        self.mesh_options = mesh_options
         self.mesh = lru_cache(maxsize=None)(self._load_mesh)
         self.field = lru_cache(maxsize=64)(self._build_field)
 
@@ -38,7 +44,11 @@ class ObjectLibrary:
         path = object_mesh_path(self.data_dir, name)
         if not path.is_file():
             raise InputError(f"object mesh not found: {path}", f"object '{name}'")
-        return load_object_mesh(path)
+        return load_object_mesh(path, options=self.mesh_options)
+
+    def repair_report(self, name: str) -> dict:
+        """The repair report of ``name``'s mesh (loads it): method, counts, distances (mm)."""
+        return dict(self.mesh(name).metadata["repair"])
 
     def _build_field(self, name: str) -> DistanceField:
         from ..geometry.distance import DistanceField

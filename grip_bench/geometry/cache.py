@@ -34,8 +34,8 @@ import numpy as np
 
 from ..core.io import atomic_file
 
-__all__ = ["CACHE_VERSION", "ENV_VAR", "cache_root", "mesh_key", "load_arrays", "save_arrays",
-           "cached_arrays", "package_version"]
+__all__ = ["CACHE_VERSION", "ENV_VAR", "cache_root", "mesh_key", "bytes_key", "load_arrays",
+           "save_arrays", "cached_arrays", "package_version"]
 
 CACHE_VERSION = "geom-2"  # bump when any cached builder changes its output for the same inputs
 ENV_VAR = "GRIP_BENCH_CACHE"
@@ -86,6 +86,18 @@ def mesh_key(
     h.update(f"{CACHE_VERSION}|{kind}|{v.shape}|{f.shape}|".encode())
     h.update(v.tobytes())
     h.update(f.tobytes())
+    h.update(json.dumps(params or {}, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def bytes_key(kind: str, parts: tuple[bytes, ...], params: Mapping | None = None) -> str:
+    """Hex SHA-256 of (version, kind, byte strings, build parameters): entries derived from
+    files (e.g. a repaired mesh: the file's bytes and the code that repairs it)."""
+    h = hashlib.sha256()
+    h.update(f"{CACHE_VERSION}|{kind}|{len(parts)}|".encode())
+    for part in parts:
+        h.update(f"{len(part)}|".encode())
+        h.update(part)
     h.update(json.dumps(params or {}, sort_keys=True).encode())
     return h.hexdigest()
 

@@ -1,15 +1,19 @@
-"""Object meshes: load, repair what is safe, reject what is not; the ObjectAsset record.
+"""Object meshes: load, check units and size, repair (measured), cache; the ObjectAsset record.
 
 Meshes leaving this module are watertight, consistently wound, outward-facing
 ``trimesh.Trimesh`` in float64 metres (docs/architecture.md). ``mesh.metadata`` keeps
-``source`` (path), ``repairs`` (list of what was changed) and ``n_components``.
+``source`` (path), ``repairs`` (list of what was changed), ``repair`` (the
+:class:`~grip_bench.geometry.repair.RepairReport` as a dict) and ``n_components``.
+docs/meshes.md describes what is accepted.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
+import re
 from pathlib import Path
 
 import manifold3d
@@ -19,7 +23,11 @@ import trimesh
 from grip_bench.core import constants
 from grip_bench.core.errors import InputError
 
-__all__ = ["ObjectAsset", "load_object_mesh", "to_manifold", "from_manifold", "repair_mesh"]
+from . import cache as gcache
+from .repair import MeshOptions, RepairReport, repair
+
+__all__ = ["ObjectAsset", "MeshOptions", "load_object_mesh", "to_manifold", "from_manifold",
+           "repair_mesh"]
 
 SUPPORTED_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 
@@ -53,8 +61,8 @@ def from_manifold(m: manifold3d.Manifold) -> trimesh.Trimesh:
 # --- loading -----------------------------------------------------------------------
 
 
-def _read(path: Path) -> trimesh.Trimesh:
-    """Read any supported file into one raw Trimesh (scenes flattened with their transforms)."""
+def _check_file(path: Path) -> None:
+    """The file exists, is not empty and has a supported suffix."""
     if not path.is_file():
         raise InputError("mesh file not found", where=path)
     if path.stat().st_size == 0:
@@ -65,6 +73,11 @@ def _read(path: Path) -> trimesh.Trimesh:
             f"(expected one of {', '.join(SUPPORTED_SUFFIXES)})",
             where=path,
         )
+
+
+def _read(path: Path) -> trimesh.Trimesh:
+    """Read any supported file into one raw Trimesh (scenes flattened with their transforms)."""
+    _check_file(path)
     try:
         scene = trimesh.load_scene(str(path), process=False)
         geoms = [g for g in scene.dump() if isinstance(g, trimesh.Trimesh)]
@@ -87,35 +100,70 @@ def _read(path: Path) -> trimesh.Trimesh:
     return trimesh.Trimesh(vertices=verts, faces=faces, process=False)
 
 
-def _unit_hint(extent: float) -> str:
-    """Name the unit an out-of-range extent (m) most likely came from, with the factor to apply."""
-    typical = 0.15  # m; GRAB objects are 5-30 cm
-    candidates = {"millimetres": 1e-3, "centimetres": 1e-2, "metres read as mm": 1e3}
-    fits = {
-        k: f
-        for k, f in candidates.items()
-        if constants.MIN_OBJECT_EXTENT <= extent * f <= constants.MAX_OBJECT_EXTENT
-    }
+def _check_size(path: Path) -> None:
+    """Refuse files declaring more than MESH_MAX_FACES faces before reading them whole."""
+    faces = _declared_faces(path)
+    if faces is not None and faces > constants.MESH_MAX_FACES:
+        raise InputError(
+            f"mesh has {faces} faces, over the {constants.MESH_MAX_FACES} this suite loads "
+            "(memory guard, core.constants.MESH_MAX_FACES): decimate it first", where=path)
+    size = path.stat().st_size
+    if faces is None and size > constants.MESH_MAX_FILE_BYTES:
+        raise InputError(
+            f"mesh file is {size / 2**20:.0f} MiB, over the "
+            f"{constants.MESH_MAX_FILE_BYTES / 2**20:.0f} MiB this suite loads (memory guard, "
+            "core.constants.MESH_MAX_FILE_BYTES): decimate it first", where=path)
+
+
+def _declared_faces(path: Path) -> int | None:
+    """Face count from the header (PLY, OFF, binary STL) or a streaming count of face
+    records (OBJ, ASCII STL) in constant memory; None for formats without one."""
+    suffix = path.suffix.lower()
+    with open(path, "rb") as f:
+        head = f.read(4096)
+        if suffix == ".ply":
+            m = re.search(rb"element\s+face\s+(\d+)", head)
+            return int(m.group(1)) if m else None
+        if suffix == ".off":
+            lines = [ln for ln in head.splitlines()[1:] if ln.strip() and not ln.startswith(b"#")]
+            fields = lines[0].split() if lines else []
+            return int(fields[1]) if len(fields) >= 2 and fields[1].isdigit() else None
+        if suffix == ".stl" and not head.lstrip().startswith(b"solid"):
+            return int.from_bytes(head[80:84], "little") if len(head) >= 84 else None
+        if suffix not in (".obj", ".stl"):
+            return None
+        token = b"\nf " if suffix == ".obj" else b"facet"
+        count, tail = head.startswith(token.lstrip(b"\n")), b""
+        f.seek(0)
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            data = tail + chunk
+            count += data.count(token)
+            tail = data[-(len(token) - 1):]
+        return int(count)
+
+
+def _unit_hint(diag: float) -> str:
+    """Name the unit a bounding-box diagonal (m) out of range most likely came from."""
+    candidates = {"millimetres": 1e-3, "centimetres": 1e-2, "metres read as millimetres": 1e3}
+    fits = {k: f for k, f in candidates.items()
+            if constants.MIN_OBJECT_DIAG <= diag * f <= constants.MAX_OBJECT_DIAG}
     if not fits:
-        return "no unit factor brings it to a plausible size"
-    unit = min(fits, key=lambda k: abs(math.log(extent * fits[k] / typical)))
-    return f"looks like {unit}; pass scale={fits[unit]:g}"
+        return "no unit factor brings it to a hand-held size; pass --mesh-scale S to set one"
+    unit = min(fits, key=lambda k: abs(math.log(diag * fits[k] / constants.TYPICAL_OBJECT_DIAG)))
+    return f"looks like {unit}: pass --mesh-scale {fits[unit]:g}"
 
 
-def _check_extent(mesh: trimesh.Trimesh, where: str | os.PathLike | None) -> None:
-    extent = float(np.ptp(mesh.vertices, axis=0).max())
-    if extent > constants.MAX_OBJECT_EXTENT:
-        raise InputError(
-            f"object extent {extent:.4g} m is over {constants.MAX_OBJECT_EXTENT} m "
-            f"({_unit_hint(extent)})",
-            where=where,
-        )
-    if extent < constants.MIN_OBJECT_EXTENT:
-        raise InputError(
-            f"object extent {extent:.4g} m is under {constants.MIN_OBJECT_EXTENT * 1e3:g} mm "
-            f"({_unit_hint(extent)})",
-            where=where,
-        )
+def _check_units(mesh: trimesh.Trimesh, where: str | os.PathLike | None) -> None:
+    """Refuse a bounding-box diagonal outside [MIN_OBJECT_DIAG, MAX_OBJECT_DIAG] (m)."""
+    diag = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
+    if diag > constants.MAX_OBJECT_DIAG:
+        raise InputError(f"bounding-box diagonal {diag:.4g} (as metres) is over "
+                         f"{constants.MAX_OBJECT_DIAG:g} m for a hand-held object; "
+                         f"{_unit_hint(diag)}", where=where)
+    if diag < constants.MIN_OBJECT_DIAG:
+        raise InputError(f"bounding-box diagonal {diag:.4g} (as metres) is under "
+                         f"{constants.MIN_OBJECT_DIAG * 1e3:g} mm for a hand-held object; "
+                         f"{_unit_hint(diag)}", where=where)
 
 
 def _check_not_flat(mesh: trimesh.Trimesh, where: str | os.PathLike | None) -> None:
@@ -125,148 +173,98 @@ def _check_not_flat(mesh: trimesh.Trimesh, where: str | os.PathLike | None) -> N
         raise InputError("mesh is flat (all vertices in one plane): zero volume", where=where)
 
 
-def _check_edge_manifold(mesh: trimesh.Trimesh, where: str | os.PathLike | None) -> None:
-    edges = np.sort(mesh.edges, axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
-    n_bad = int((counts > 2).sum())
-    if n_bad:
-        raise InputError(
-            f"non-manifold: {n_bad} edges are shared by more than two faces", where=where
-        )
-
-
-def _boundary_loops(faces: np.ndarray) -> list[list[tuple[int, int]]]:
-    """Directed boundary edges of an oriented mesh, chained into loops (lists of (a, b))."""
-    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    key = np.sort(directed, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    boundary = directed[counts[inverse.ravel()] == 1]
-    nxt: dict[int, list[int]] = {}
-    for a, b in boundary.tolist():
-        nxt.setdefault(a, []).append(b)
-    loops = []
-    while nxt:
-        a = next(iter(nxt))
-        path: list[tuple[int, int]] = []
-        seen = {a: 0}
-        while a in nxt:
-            b = nxt[a].pop()
-            if not nxt[a]:
-                del nxt[a]
-            path.append((a, b))
-            if b in seen:  # closed a simple loop (pinch vertices give figure-eights: split them)
-                loops.append(path[seen[b] :])
-                del path[seen[b] :]
-                seen = {e[0]: i for i, e in enumerate(path)}
-            seen[b] = len(path)
-            a = b
-        if path:
-            loops.append(path)  # an unclosed chain: reported as open by the caller
-    return loops
-
-
-def _close_small_holes(
-    mesh: trimesh.Trimesh, where: str | os.PathLike | None, repairs: list[str]
-) -> trimesh.Trimesh:
-    """Fan-fill each boundary loop from its centroid; reject loops too large to guess over."""
-    loops = _boundary_loops(np.asarray(mesh.faces))
-    if not loops:
-        return mesh
-    diag = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
-    limit = constants.MAX_HOLE_FRACTION * diag
-    verts, faces = [np.asarray(mesh.vertices)], [np.asarray(mesh.faces)]
-    n = len(mesh.vertices)
-    for loop in loops:
-        idx = np.array(loop)
-        seg = mesh.vertices[idx[:, 1]] - mesh.vertices[idx[:, 0]]
-        perimeter = float(np.linalg.norm(seg, axis=1).sum())
-        if perimeter > limit or idx[0, 0] != idx[-1, 1]:
-            raise InputError(
-                f"mesh is open: a hole with perimeter {perimeter * 1e3:.1f} mm "
-                f"({len(loop)} edges) is too large to close safely (limit {limit * 1e3:.1f} mm)",
-                where=where,
-            )
-        verts.append(mesh.vertices[idx[:, 0]].mean(0, keepdims=True))
-        # the fan triangle (b, a, c) runs the boundary edge a->b backwards, as its neighbour needs
-        faces.append(np.column_stack([idx[:, 1], idx[:, 0], np.full(len(idx), n)]))
-        n += 1
-    repairs.append(f"closed {len(loops)} small hole(s)")
-    return trimesh.Trimesh(np.vstack(verts), np.vstack(faces), process=False)
-
-
-def _clean(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
-    """Merge duplicate vertices, drop degenerate and duplicate faces."""
-    nv, nf = len(mesh.vertices), len(mesh.faces)
-    mesh.merge_vertices(digits_vertex=round(-math.log10(constants.MERGE_TOL)))
-    mesh.update_faces(mesh.nondegenerate_faces(height=constants.MERGE_TOL))
-    mesh.update_faces(mesh.unique_faces())
-    mesh.remove_unreferenced_vertices()
-    if len(mesh.vertices) != nv:
-        repairs.append(f"merged/removed {nv - len(mesh.vertices)} vertices")
-    if len(mesh.faces) != nf:
-        repairs.append(f"dropped {nf - len(mesh.faces)} degenerate or duplicate faces")
-    return mesh
-
-
-def _union_components(
-    mesh: trimesh.Trimesh, where: str | os.PathLike | None, repairs: list[str]
-) -> trimesh.Trimesh:
-    """Several closed shells: union them (overlaps would double-count volume and contact)."""
-    parts = mesh.split(only_watertight=False)
-    if len(parts) <= 1:
-        return mesh
-    ms = [to_manifold(p) for p in parts]
-    union = manifold3d.Manifold.batch_boolean(ms, manifold3d.OpType.Add)
-    if union.status() != manifold3d.Error.NoError or union.is_empty():
-        raise InputError(f"could not union {len(parts)} components ({union.status().name})", where)
-    repairs.append(f"united {len(parts)} watertight components")
-    return from_manifold(union)
+def _repairs(report: RepairReport) -> list[str]:
+    """The report as short phrases (``mesh.metadata["repairs"]``)."""
+    out = []
+    if report.welded_vertices:
+        out.append(f"merged/removed {report.welded_vertices} vertices")
+    if report.dropped_faces:
+        out.append(f"dropped {report.dropped_faces} degenerate or duplicate faces")
+    if report.closed_holes:
+        out.append(f"closed {report.closed_holes} small hole(s)")
+    if report.method == "surface" and report.shells_out < report.shells_in:
+        out.append(f"united {report.shells_in} watertight components")
+    if report.method == "winding-number":
+        out.append(f"rebuilt from the winding number ({report.reason})")
+    return out
 
 
 def repair_mesh(
-    mesh: trimesh.Trimesh, where: str | os.PathLike | None = None
+    mesh: trimesh.Trimesh, where: str | os.PathLike | None = None,
+    accept_repair_mm: float = constants.MESH_REPAIR_TOLERANCE_MM,
 ) -> trimesh.Trimesh:
     """Repair a raw mesh into a watertight outward-facing solid, or raise InputError.
 
-    Safe repairs only: merge duplicate vertices, drop degenerate / duplicate faces,
-    make winding consistent and outward, fan-close holes smaller than
-    ``MAX_HOLE_FRACTION`` of the bounding-box diagonal, union overlapping shells.
+    :func:`grip_bench.geometry.repair.repair` (weld, surface repair, else winding-number
+    rebuild; measured against ``accept_repair_mm``), then the volume check.
+    ``mesh.metadata``: ``repair`` (the report), ``repairs``, ``n_components``.
     """
-    repairs: list[str] = []
-    mesh = _clean(mesh.copy(), repairs)
     if len(mesh.faces) == 0:
-        raise InputError("mesh has no non-degenerate faces", where=where)
+        raise InputError("mesh has no faces", where=where)
     _check_not_flat(mesh, where)
-    _check_edge_manifold(mesh, where)
-    trimesh.repair.fix_winding(mesh)
-    mesh = _close_small_holes(mesh, where, repairs)
-    trimesh.repair.fix_normals(mesh, multibody=True)
-    if not (mesh.is_watertight and mesh.is_winding_consistent):
-        raise InputError("mesh is not watertight after repair (non-manifold vertices?)", where)
-    mesh = _union_components(mesh, where, repairs)
+    mesh, report = repair(mesh, where, accept_repair_mm)
     volume = float(mesh.volume)
     extent = float(np.ptp(mesh.vertices, axis=0).max())
     if not volume > constants.FLAT_TOL * extent**3:
         raise InputError(f"mesh encloses no volume ({volume:.3g} m^3)", where=where)
-    n_components = len(mesh.split(only_watertight=False))
-    mesh.metadata.update(repairs=repairs, n_components=n_components)
+    mesh.metadata.update(repairs=_repairs(report), repair=report.as_dict(),
+                         n_components=len(mesh.split(only_watertight=False)))
     return mesh
 
 
-def load_object_mesh(path: str | os.PathLike, scale: float = 1.0) -> trimesh.Trimesh:
+def _code_digest() -> bytes:
+    """The source of the code a repaired mesh depends on (part of its cache key)."""
+    from . import repair as repair_module
+
+    files = (__file__, repair_module.__file__, constants.__file__)
+    return b"".join(Path(f).read_bytes() for f in files)
+
+
+def load_object_mesh(
+    path: str | os.PathLike, scale: float = 1.0, options: MeshOptions | None = None
+) -> trimesh.Trimesh:
     """Load an object mesh (OBJ, PLY, STL, GLB/glTF, OFF) as a watertight solid in metres.
 
-    ``scale`` multiplies coordinates first (e.g. 0.001 for a file in millimetres).
-    Raises InputError naming the file and the problem when it cannot be used.
+    ``options`` (:class:`MeshOptions`): ``scale`` multiplies coordinates first (e.g. 0.001
+    for a file in millimetres; without it the units check refuses implausible sizes),
+    ``accept_repair_mm`` bounds the repair distance. ``scale`` != 1 is a shorthand for
+    ``MeshOptions(scale=scale)``. The result is cached (file bytes, options, code); the
+    report is ``mesh.metadata["repair"]`` (``cached`` True when read back). Raises
+    InputError naming the file and the problem when it cannot be used.
     """
     path = Path(path)
-    mesh = _read(path)
-    if scale != 1.0:
-        mesh.apply_scale(scale)
-    _check_extent(mesh, path)
-    mesh = repair_mesh(mesh, where=path)
-    mesh.metadata["source"] = str(path)
+    if options is None:
+        options = MeshOptions(scale=None if scale == 1.0 else float(scale))
+    _check_file(path)
+    _check_size(path)
+    key = gcache.bytes_key("repaired-mesh", (path.read_bytes(), _code_digest()),
+                           options.as_dict())
+    names = ("vertices", "faces", "metadata")
+    arrays = gcache.load_arrays("repaired-mesh", key, names)
+    cached = arrays is not None
+    if arrays is None:
+        arrays = _load_arrays(path, options)
+        gcache.save_arrays("repaired-mesh", key, arrays)
+    meta = json.loads(bytes(arrays["metadata"]).decode())
+    mesh = trimesh.Trimesh(np.asarray(arrays["vertices"], np.float64),
+                           np.asarray(arrays["faces"], np.int64), process=False)
+    meta["repair"]["cached"] = cached
+    mesh.metadata.update(meta, source=str(path))
     return mesh
+
+
+def _load_arrays(path: Path, options: MeshOptions) -> dict[str, np.ndarray]:
+    """Read, scale, check and repair ``path``: the arrays the cache keeps."""
+    mesh = _read(path)
+    if options.scale is not None:
+        mesh.apply_scale(options.scale)
+    else:
+        _check_units(mesh, path)
+    mesh = repair_mesh(mesh, where=path, accept_repair_mm=options.accept_repair_mm)
+    meta = {k: mesh.metadata[k] for k in ("repairs", "repair", "n_components")}
+    return {"vertices": np.asarray(mesh.vertices, np.float64),
+            "faces": np.asarray(mesh.faces, np.int64),
+            "metadata": np.frombuffer(json.dumps(meta).encode(), np.uint8)}
 
 
 # --- ObjectAsset ---------------------------------------------------------------------

@@ -146,9 +146,13 @@ def _frames_30fps(h: dict) -> int:
 
 
 def _check_headers(pred_path: Path, ph: dict, gt_path: Path, gh: dict) -> None:
-    if ph["obj_name"] != gh["obj_name"]:
-        raise InputError(f"object '{ph['obj_name']}', but the ground truth {gt_path} has "
-                         f"'{gh['obj_name']}'", pred_path)
+    """A prediction must be of the ground truth's take: same object, subject, intent and
+    length (a prediction of another subject's take would be scored against wrong hands)."""
+    for key, what in (("obj_name", "object"), ("sbj_id", "subject"),
+                      ("motion_intent", "intent")):
+        if ph[key] != gh[key]:
+            raise InputError(f"{what} '{ph[key]}', but the ground truth {gt_path} has "
+                             f"'{gh[key]}'", pred_path)
     np_, ng = _frames_30fps(ph), _frames_30fps(gh)
     if np_ != ng:
         raise InputError(f"{np_} frames, but the ground truth {gt_path} has {ng}", pred_path)
@@ -158,7 +162,7 @@ def _check_headers(pred_path: Path, ph: dict, gt_path: Path, gh: dict) -> None:
 _LIBRARY = None
 
 
-def _init_worker(gt_dir: str) -> None:
+def _init_worker(gt_dir: str, mesh_options=None) -> None:
     """Process-pool initializer: one torch thread and one object library per worker."""
     import torch
 
@@ -166,7 +170,7 @@ def _init_worker(gt_dir: str) -> None:
 
     global _LIBRARY
     torch.set_num_threads(1)
-    _LIBRARY = ObjectLibrary(gt_dir)
+    _LIBRARY = ObjectLibrary(gt_dir, mesh_options)
 
 
 def run_task(task: Task) -> tuple:
@@ -193,7 +197,8 @@ def _progress(total: int, enabled: bool) -> tqdm:
     return tqdm(total=total, desc="evaluate", unit="seq", disable=not enabled, leave=False)
 
 
-def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool) -> list[tuple]:
+def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool,
+              mesh_options=None) -> list[tuple]:
     """Results of ``tasks`` in task order; ``workers`` > 1 uses a spawn process pool."""
     import torch
 
@@ -202,7 +207,7 @@ def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool) -> 
     if workers <= 1 or len(tasks) <= 1:
         threads = torch.get_num_threads()
         try:  # one thread, as in the workers: the same floating-point path for any --workers
-            _init_worker(str(gt_dir))
+            _init_worker(str(gt_dir), mesh_options)
             for i, task in enumerate(tasks):
                 results[i] = run_task(task)
                 bar.update()
@@ -213,7 +218,7 @@ def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool) -> 
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    pool = worker_pool(workers, gt_dir)
+    pool = worker_pool(workers, gt_dir, mesh_options)
     futures = {pool.submit(run_task, t): i for i, t in enumerate(tasks)}
     try:
         for fut in as_completed(futures):
@@ -236,19 +241,20 @@ def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool) -> 
 _POOLS: dict = {}
 
 
-def worker_pool(workers: int, gt_dir: Path) -> ProcessPoolExecutor:
+def worker_pool(workers: int, gt_dir: Path, mesh_options=None) -> ProcessPoolExecutor:
     """The process pool for ``gt_dir`` (created on first use; others are shut down)."""
     import atexit
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    key = (int(workers), str(Path(gt_dir).resolve()))
+    key = (int(workers), str(Path(gt_dir).resolve()), mesh_options)
     if key not in _POOLS:
         if not _POOLS:
             atexit.register(close_pools)
         close_pools()
         _POOLS[key] = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                                          initializer=_init_worker, initargs=(str(gt_dir),))
+                                          initializer=_init_worker,
+                                          initargs=(str(gt_dir), mesh_options))
     return _POOLS[key]
 
 
@@ -264,7 +270,8 @@ def evaluate_dirs(pred_dir: str | os.PathLike, gt_dir: str | os.PathLike,
                   metrics: Iterable[str] | None = None,
                   per_frame: bool = False, workers: int = 1, progress: bool = False,
                   split: str = "test", options: EvalOptions | None = None,
-                  contact_stats: bool = False) -> dict:
+                  contact_stats: bool = False, mesh_options=None,
+                  mesh_reports: dict | None = None) -> dict:
     """Evaluate every prediction of ``pred_dir`` against ``gt_dir``; write to ``out_dir``.
 
     metrics: ids (None: all registered); workers: processes; split: GT split ("all" for
@@ -284,11 +291,13 @@ def evaluate_dirs(pred_dir: str | os.PathLike, gt_dir: str | os.PathLike,
                        perturbation_name(pred_manifest))
     tasks = [Task(str(pred_dir / rel), str(gt_dir / rel), labels, options, per_frame,
                   contact_stats) for rel, _, _ in pairs]
-    results = run_tasks(tasks, gt_dir, max(1, int(workers)), progress)
+    results = run_tasks(tasks, gt_dir, max(1, int(workers)), progress, mesh_options)
     stats = [r[3] for r in results if len(r) > 3]
     results = [tuple(r[:3]) for r in results]
     info = _summary(labels, options, pred_dir, gt_dir, pred_manifest, results, ignored)
     info["wall_time_s"] = round(time.perf_counter() - start, 3)
+    if mesh_reports is not None:  # object meshes as taken in (geometry.repair.MeshOptions)
+        info["meshes"] = {"options": mesh_options and mesh_options.as_dict(), **mesh_reports}
     _write_outputs(out_dir, results, per_frame, info)
     if contact_stats:
         try:

@@ -114,17 +114,17 @@ def _error(path, **kw) -> InputError:
 
 def test_millimetre_scale_is_named(tmp_path):
     err = _error(_write(_sphere(radius=50.0), tmp_path / "mm.obj"))
-    assert "millimetres" in err.what and "scale=0.001" in err.what
+    assert "millimetres" in err.what and "--mesh-scale 0.001" in err.what
 
 
 def test_centimetre_scale_is_named(tmp_path):
     err = _error(_write(_sphere(radius=10.0), tmp_path / "cm.obj"))
-    assert "centimetres" in err.what and "scale=0.01" in err.what
+    assert "centimetres" in err.what and "--mesh-scale 0.01" in err.what
 
 
 def test_too_small_is_named(tmp_path):
     err = _error(_write(_sphere(radius=1e-4), tmp_path / "tiny.obj"))
-    assert "under" in err.what and "scale=1000" in err.what
+    assert "under" in err.what and "--mesh-scale 1000" in err.what
 
 
 def test_empty_file(tmp_path):
