@@ -4,6 +4,13 @@ A *unit* is a directory ``<root>/<kind>/<hh>/<key>/`` holding the files one step
 (predictions of one sequence, metric values of one sequence...). Units appear atomically:
 they are written into ``<root>/.tmp/`` and renamed into place only when the writer finished,
 so killing the process at any moment leaves either the complete unit or nothing.
+
+Each finished unit carries ``.integrity.json``: the sha256 of every file in it, recorded
+just before the rename. A unit is verified when first reused in a process; a flipped byte,
+a missing or an extra file makes it count as missing, so the run rebuilds it (the damaged
+copy is removed only then, so ``--dry-run`` changes nothing) and says so in
+:attr:`Cache.notes`. Units written before integrity records existed are trusted once and
+given a record.
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ from typing import Any
 
 from ..core.constants import CACHE_SCHEMA_VERSION
 from ..core.errors import InputError
-from ..core.io import jsonable
+from ..core.io import WRITE_ERRNOS, WriteError, jsonable
 from ..core.version import __version__
 
 # Part of every key: a new release or cache layout invalidates old units instead of
@@ -33,6 +40,7 @@ _KIND_RE = re.compile(r"^[a-z0-9_]+$")
 _KEY_RE = re.compile(r"^([a-z0-9_]+)-([0-9a-f]{64})$")
 _TMP = ".tmp"
 UNIT_FILE = "unit.json"  # each unit's record: kind, label, inputs, info, seconds
+INTEGRITY_FILE = ".integrity.json"  # sha256 of each file of the finished unit
 
 
 def canonical_json(obj: Any) -> str:
@@ -69,6 +77,8 @@ class Cache:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
         self._first_lookup: dict[str, bool] = {}
+        self._verified: dict[str, bool] = {}  # key -> the unit passed its integrity check
+        self.notes: list[str] = []  # damaged units found (and rebuilt), for the run log
         self.written = 0
         self.removed_stale = self.clean_stale()
 
@@ -82,10 +92,31 @@ class Cache:
         return self.root / kind / digest[:2] / key
 
     def has(self, key: str) -> bool:
-        """Whether the unit is complete; the first answer per key feeds :meth:`summary`."""
-        found = self.path(key).is_dir()
+        """Whether the unit is complete and intact; the first answer per key feeds
+        :meth:`summary`. A damaged unit counts as missing (see the module docstring)."""
+        found = self.path(key).is_dir() and self._intact(key)
         self._first_lookup.setdefault(key, found)
         return found
+
+    def _intact(self, key: str) -> bool:
+        """Verify the unit's files against its integrity record, once per process."""
+        if key not in self._verified:
+            unit = self.path(key)
+            problem = check_integrity(unit)
+            if problem == _NO_RECORD:
+                # a unit of an older release: trust it once, check it from now on
+                with contextlib.suppress(OSError):
+                    write_integrity(unit)
+                problem = None
+            if problem:
+                self.notes.append(f"note: cache unit {unit} is damaged ({problem}): rebuilding it")
+            self._verified[key] = problem is None
+        return self._verified[key]
+
+    def take_notes(self) -> list[str]:
+        """The notes gathered since the last call (each is logged once)."""
+        notes, self.notes = self.notes, []
+        return notes
 
     # -- writing -------------------------------------------------------------
     @contextlib.contextmanager
@@ -99,10 +130,15 @@ class Cache:
         tmp = self._new_tmp(key)
         try:
             yield tmp
-        except BaseException:
+            write_integrity(tmp)
+        except BaseException as e:
             shutil.rmtree(tmp, ignore_errors=True)
+            if isinstance(e, OSError) and e.errno in WRITE_ERRNOS:
+                raise _unit_write_error(e, tmp, final) from None
             raise
         final.parent.mkdir(parents=True, exist_ok=True)
+        if self._verified.get(key) is False:
+            self._discard(final)  # the damaged copy this unit replaces
         try:
             os.rename(tmp, final)
         except OSError:
@@ -111,6 +147,16 @@ class Cache:
                 raise
         else:
             self.written += 1
+            self._verified[key] = True
+
+    def _discard(self, unit: Path) -> None:
+        """Remove a damaged unit: renamed into ``.tmp`` first, so no reader sees half of it."""
+        if not unit.is_dir():
+            return
+        trash = Path(tempfile.mkdtemp(prefix=f"{socket.gethostname()}__{os.getpid()}__damaged__",
+                                      dir=self.root / _TMP))
+        os.rename(unit, trash / unit.name)
+        shutil.rmtree(trash, ignore_errors=True)
 
     def put_bytes(self, key: str, data: bytes, name: str = "data.bin") -> Path:
         """Store ``data`` as the single file ``name`` of a new unit."""
@@ -187,3 +233,64 @@ class Cache:
                           for k, c in s["by_kind"].items())
         total = s["hits"] + s["misses"]
         return f"cache: reused {s['hits']} of {total} units" + (f" ({parts})" if parts else "")
+
+
+def _unit_write_error(e: OSError, tmp: Path, final: Path) -> WriteError:
+    """A refused write inside a unit's temp folder, one line, naming the file as it would
+    have been in the finished unit (the temp folder is gone)."""
+    where = getattr(e, "where", None) or e.filename or tmp
+    where = str(where).replace(str(tmp), str(final), 1)
+    what = getattr(e, "what", None) or f"cannot write ({e.strerror or e})"
+    err = WriteError(what, where)
+    err.errno = e.errno
+    return err
+
+
+# --- integrity records ----------------------------------------------------------------------
+_NO_RECORD = "no integrity record"
+
+
+def _file_digests(unit: Path) -> dict[str, str]:
+    """``{relative path: sha256}`` of every file under ``unit`` but the record itself."""
+    out = {}
+    for p in sorted(unit.rglob("*")):
+        rel = p.relative_to(unit).as_posix()
+        if rel == INTEGRITY_FILE or not p.is_file():
+            continue
+        h = hashlib.sha256()
+        with open(p, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        out[rel] = h.hexdigest()
+    return out
+
+
+def write_integrity(unit: Path) -> None:
+    """Record the digest of each file of ``unit`` (called on the finished temp folder)."""
+    text = json.dumps({"files": _file_digests(unit)}, sort_keys=True, indent=1) + "\n"
+    (unit / INTEGRITY_FILE).write_text(text, encoding="utf-8")
+
+
+def check_integrity(unit: Path) -> str | None:
+    """None when ``unit`` matches its record, else what is wrong (one short phrase)."""
+    record = unit / INTEGRITY_FILE
+    if not record.is_file():
+        return _NO_RECORD
+    try:
+        want = json.loads(record.read_text(encoding="utf-8"))["files"]
+        if not isinstance(want, dict):
+            raise TypeError("files is not a mapping")
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as e:
+        return f"unreadable integrity record: {type(e).__name__}"
+    try:
+        have = _file_digests(unit)
+    except OSError as e:
+        return f"unreadable: {e.strerror or e}"
+    for rel in sorted(set(want) | set(have)):
+        if rel not in have:
+            return f"{rel} is missing"
+        if rel not in want:
+            return f"{rel} was not part of it"
+        if have[rel] != want[rel]:
+            return f"{rel} does not match its recorded sha256"
+    return None

@@ -95,6 +95,8 @@ def run_stage(
     on the CPU (:func:`run_parallel`); everything else runs here in plan order.
     """
     t0 = time.perf_counter()
+    for note in st.cache.take_notes():  # damaged units found while planning: rebuilt below
+        st.log(note)
     units = st.plan.of(kind)
     todo = [u for u in units if not st.plan.cached[u.key]]
     if units:

@@ -16,6 +16,8 @@ network sizes on real GRAB: needs --data and a GPU), or a path to your own .toml
 OUT layout: cache/ (work units), results.csv, runtime.csv, leaderboard.{csv,md,html},
 tables/, figures/, manifest.json, run.log. Re-running the same command reuses every
 finished unit; `grip-bench report OUT` re-renders the report without recomputing.
+One run at a time per OUT: a second one stops with an error naming OUT/.lock and the
+holder's PID (or waits, with --wait). A damaged cache unit is rebuilt, with a note.
 """
 
 
@@ -41,6 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="print the plan (cached and missing units) and stop")
     p.add_argument("--quiet", action="store_true", help="no progress bars or log on stderr")
+    p.add_argument("--wait", action="store_true",
+                   help="if another run is using OUT (it holds OUT/.lock), wait for it to "
+                   "finish instead of stopping with an error")
     p.set_defaults(func=run)
 
 
@@ -51,6 +56,7 @@ def _interrupt(signum: int, frame: types.FrameType | None) -> NoReturn:
 
 def run(args: argparse.Namespace) -> int:
     from ..bench import runner
+    from ..bench.lock import run_lock
     from ..bench.plan import make_config
     from ..core.errors import InputError
 
@@ -65,7 +71,9 @@ def run(args: argparse.Namespace) -> int:
         return 0
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
-        st = runner.run(cfg)
+        # one run per OUT: a second one would race on results.csv and the report
+        with run_lock(cfg.out, wait=args.wait):
+            st = runner.run(cfg)
     finally:
         signal.signal(signal.SIGTERM, previous)
     print(f"done: {cfg.out}")

@@ -29,6 +29,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from .constants import NPZ_MAX_MEMBER_BYTES
 from .errors import GripBenchError, InputError, UnsafeFileError
 
 _NUMPY_CORE = ("numpy.core.multiarray", "numpy._core.multiarray")
@@ -189,7 +190,13 @@ def load_pickle(path: str | os.PathLike, *, allow_chumpy: bool = False,
     except OSError as e:
         raise InputError(f"cannot read ({e.strerror or e})", path) from e
     except Exception as e:  # noqa: BLE001 - any parse failure of untrusted bytes is bad input
-        raise InputError(f"not a readable pickle ({type(e).__name__}: {e})", path) from e
+        raise InputError(f"not a readable pickle ({type(e).__name__}: {_one_line(e)})",
+                         path) from e
+
+
+def _one_line(e: BaseException) -> str:
+    """An exception's message on one line (the CLI's errors are one line each)."""
+    return " ".join(str(e).split())[:300]
 
 
 def _to_plain(obj: Any) -> Any:
@@ -220,6 +227,11 @@ def _read_npy(raw: bytes, source: str) -> np.ndarray:
     if dtype.hasobject:
         arr = RestrictedUnpickler(f, source=source).load()
         return _to_plain(arr) if not isinstance(arr, np.ndarray) else arr
+    declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    if declared > len(raw) - f.tell():
+        # numpy would allocate the declared size before finding the data short
+        raise InputError(f"header declares shape {shape} of {dtype} ({declared} bytes) but the "
+                         f"member holds {len(raw) - f.tell()} bytes of data", source)
     f.seek(0)
     return np.lib.format.read_array(f, allow_pickle=False)
 
@@ -233,18 +245,24 @@ def load_npz(path: str | os.PathLike) -> dict[str, Any]:
     out: dict[str, Any] = {}
     try:
         zf = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, OSError) as e:
-        raise InputError(f"not a readable .npz archive ({e})", path) from e
+    except OSError as e:
+        raise InputError(f"cannot read ({e.strerror or e})", path) from e
+    except Exception as e:  # noqa: BLE001 - BadZipFile, or worse from crafted bytes
+        raise InputError(f"not a readable .npz archive ({_one_line(e)})", path) from e
     with zf:
-        for member in zf.namelist():
+        for info in zf.infolist():
+            member = info.filename
             key = member[:-4] if member.endswith(".npy") else member
+            if info.file_size > NPZ_MAX_MEMBER_BYTES:
+                raise InputError(f"member unpacks to {info.file_size} bytes (more than "
+                                 f"{NPZ_MAX_MEMBER_BYTES}): refused", f"{path}: {key}")
             try:
-                arr = _read_npy(zf.read(member), f"{path}: {key}")
+                arr = _read_npy(zf.read(info), f"{path}: {key}")
             except GripBenchError:
                 raise
             except Exception as e:  # noqa: BLE001 - any parse failure of untrusted bytes
                 raise InputError(
-                    f"corrupt array ({type(e).__name__}: {e})", f"{path}: {key}"
+                    f"corrupt array ({type(e).__name__}: {_one_line(e)})", f"{path}: {key}"
                 ) from e
             if isinstance(arr, np.ndarray) and arr.dtype.hasobject and arr.shape == ():
                 arr = arr.item()

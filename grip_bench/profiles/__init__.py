@@ -8,6 +8,7 @@ The loader is generic: the allowed keys of each section and their types are thos
 
 from __future__ import annotations
 
+import difflib
 import tomllib
 from pathlib import Path
 
@@ -33,7 +34,22 @@ def _read(path: Path) -> dict:
     try:
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
-        raise InputError(f"not a readable TOML profile ({e})", path) from None
+        raise InputError(f"not a readable TOML profile ({_one_line(e)})", path) from None
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split())
+
+
+def _type_name(value: object) -> str:
+    """TOML's name for the type of ``value`` (what the user wrote, not Python's)."""
+    names = {bool: "boolean", int: "integer", float: "float", str: "string", list: "array",
+             dict: "table"}
+    return next((n for t, n in names.items() if type(value) is t), type(value).__name__)
+
+
+def _a(noun: str) -> str:
+    return f"{'an' if noun[0] in 'aeiou' else 'a'} {noun}"
 
 
 def _type_ok(value: object, ref: object) -> bool:
@@ -46,31 +62,37 @@ def _type_ok(value: object, ref: object) -> bool:
     return isinstance(value, type(ref))
 
 
+def _did_you_mean(name: str, known: object) -> str:
+    """`` (did you mean 'x'?)`` for a close known name (a typo), else ``""``."""
+    close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
 def validate_profile(data: dict, schema: dict, where: Path) -> dict:
     """Check ``data``'s sections and keys against ``schema``; return a copy with floats fixed."""
     out = {}
     for section, values in data.items():
         if section not in schema:
-            raise InputError(
-                f"unknown section [{section}] (known: {', '.join(sorted(schema))})", where
-            )
+            hint = _did_you_mean(section, schema) or f" (known: {', '.join(sorted(schema))})"
+            raise InputError(f"unknown section [{section}]{hint}", f"{where}: [{section}]")
         if not isinstance(values, dict):
             raise InputError(f"[{section}] should be a table of keys", where)
         out[section] = {}
         for key, value in values.items():
             if key not in schema[section]:
-                raise InputError(f"unknown key {key!r} in [{section}]", f"{where}: {section}.{key}")
+                raise InputError(f"unknown key {key!r} in [{section}]"
+                                 f"{_did_you_mean(key, schema[section])}",
+                                 f"{where}: {section}.{key}")
             ref = schema[section][key]
             if not _type_ok(value, ref):
-                raise InputError(
-                    f"{value!r} should be a {type(ref).__name__}", f"{where}: {section}.{key}"
-                )
+                raise InputError(f"{value!r} should be {_a(_type_name(ref))}, not "
+                                 f"{_a(_type_name(value))}", f"{where}: {section}.{key}")
             out[section][key] = float(value) if isinstance(ref, float) else value
     return out
 
 
 # Keys added after profiles were in users' hands: a profile without them gets the default's.
-OPTIONAL_KEYS = {"run": ("averaging", "validity_sequences")}
+OPTIONAL_KEYS = {"run": ("averaging", "validity_sequences", "viewer_sequences")}
 
 
 def load_profile(name: str | Path = "default") -> dict:

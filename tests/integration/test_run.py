@@ -307,6 +307,99 @@ def test_killed_run_resumes_to_identical_results(finished, tiny, tmp_path, capsy
     assert not any((out / "cache" / ".tmp").iterdir())  # the killed writer's folder is gone
 
 
+# A run that stops at a chosen point and waits there to be killed: inside the second metrics
+# unit (its files written, the unit not yet renamed into place) or inside report writing
+# (after the report's third atomic rename). The marker file says it got there.
+_PAUSING_RUN = """
+import os, sys, time
+from grip_bench.bench import runner
+from grip_bench.cli.main import main
+
+where, marker = sys.argv[1], sys.argv[2]
+
+
+def pause():
+    with open(marker, "w") as f:
+        f.write(str(os.getpid()))
+    time.sleep(600)
+
+
+if where == "evaluate":
+    stages = list(runner.STAGE_FUNCTIONS)
+    i = [kind for _, kind, _ in stages].index("metrics")
+    name, kind, fn = stages[i]
+    done = []
+
+    def paused(st, unit, tmp):
+        info = fn(st, unit, tmp)
+        done.append(unit.key)
+        if len(done) == 2:
+            pause()
+        return info
+
+    stages[i] = (name, kind, paused)
+    runner.STAGE_FUNCTIONS = tuple(stages)
+else:
+    real_replace, write_report, renames = os.replace, runner.write_report, []
+
+    def replace(src, dst):
+        real_replace(src, dst)
+        renames.append(dst)
+        if len(renames) == 3:
+            pause()
+
+    def paused_report(*args, **kwargs):
+        os.replace = replace
+        return write_report(*args, **kwargs)
+
+    runner.write_report = paused_report
+sys.exit(main(sys.argv[3:]))
+"""
+
+
+def _kill_at(tiny, out: Path, where: str, tmp_path: Path) -> None:
+    """Run until the pause point ``where``, then SIGKILL (no cleanup at all)."""
+    marker = tmp_path / f"paused-{where}"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-c", _PAUSING_RUN, where, str(marker),
+                             *_args(tiny, out)], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    while not marker.exists() and proc.poll() is None:
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
+    proc.kill()
+    proc.communicate(timeout=120)
+
+
+def _shows_runtime(rel: str) -> bool:
+    """Report files showing wall times, which each run's runtime units measure afresh."""
+    return rel.startswith("tables/runtime.")
+
+
+@pytest.mark.slow
+def test_run_killed_in_evaluation_and_in_report_resumes_identically(finished, tiny, tmp_path,
+                                                                     capsys):
+    """SIGKILL inside a metrics unit, then (resumed) inside report writing: the next run
+    gives byte-identical results, tables, leaderboards and figures."""
+    out = tmp_path / "k"
+    _kill_at(tiny, out, "evaluate", tmp_path)
+    kinds = {u.parts[-3] for u in _units(out)}
+    assert "metrics" in kinds and "runtime" not in kinds  # it died in the evaluation stage
+    assert not (out / "results.csv").exists()
+    _kill_at(tiny, out, "report", tmp_path)
+    assert len(_units(out)) == N_UNITS and not (out / "manifest.json").exists()
+    assert main(_args(tiny, out)) == 0
+    assert f"reused {N_UNITS} of {N_UNITS} units" in capsys.readouterr().out
+    for name in ("results.csv", "frames.csv", "validity.csv"):
+        assert (out / name).read_bytes() == (finished / name).read_bytes(), name
+    assert _report_files(out).keys() == _report_files(finished).keys()
+    differ = [k for k, v in _report_files(out).items() if v != _report_files(finished)[k]
+              and not _shows_runtime(k)]
+    assert not differ, differ
+    assert not any((out / "cache" / ".tmp").iterdir())
+    assert not list(out.rglob(".*.tmp"))  # no half-written report file survived
+
+
 # --- errors ----------------------------------------------------------------------------------
 def test_paper_profile_needs_data(tmp_path, capsys):
     assert main(["run", "--profile", "paper", "--out", str(tmp_path)]) == 1

@@ -155,8 +155,10 @@ def test_run_many_batches_anet_across_sequences_without_changing_results(root, t
         assert got.n_frames == seq.n_frames
         for part in ("rhand", "lhand"):
             for key in ("hand_pose", "global_orient", "transl"):
+                # float32 GEMMs of other batch shapes sum in another order (AMX / AVX512
+                # kernels per shape), and ANet's recursion carries that rounding forward
                 np.testing.assert_allclose(
-                    getattr(got, part)[key], getattr(one, part)[key], atol=1e-5
+                    getattr(got, part)[key], getattr(one, part)[key], rtol=1e-5, atol=1e-5
                 )
 
 
@@ -270,7 +272,7 @@ def test_profiles_validate_keys(tmp_path):
     bad.write_text("[grip]\nlatnet = 3\n")
     with pytest.raises(InputError, match="latnet"):
         load_profile(bad)
-    with pytest.raises(InputError, match="should be a int"):
+    with pytest.raises(InputError, match="should be an integer"):
         validate_profile({"grip": {"latent": "x"}}, {"grip": {"latent": 1}}, tmp_path)
     with pytest.raises(InputError, match="unknown profile"):
         load_profile("huge")
