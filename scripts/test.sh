@@ -10,6 +10,12 @@ VENV=${VENV:-.venv}
 python -m pip install -q --upgrade pip
 python -m pip install -q torch==2.13.0
 python -m pip install -q -e ".[dev,smplx]"
+# the viewer's browser test needs Chromium (Debian's package); installed where we may
+# (root with apt, as on CI), otherwise that test skips and says why
+if ! command -v chromium >/dev/null && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium) \
+        >/dev/null || echo "note: could not install chromium; the browser test will skip"
+fi
 # the habits CI keeps: ruff (line length included) and the layer contract of
 # docs/architecture.md (pyproject.toml [tool.importlinter]), before the tests
 ruff check grip_bench baselines tests tools

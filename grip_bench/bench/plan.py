@@ -68,6 +68,9 @@ def run_settings(profile: dict, where: str | os.PathLike) -> dict:
     if s.get("validity_sequences", 0) < 0:  # optional key
         raise InputError(f"[run] validity_sequences is too small: {s['validity_sequences']}",
                          where=f"{where}: run.validity_sequences")
+    if s.get("viewer_sequences", 0) < 0:  # optional key (runner's report stage)
+        raise InputError(f"[run] viewer_sequences is too small: {s['viewer_sequences']}",
+                         where=f"{where}: run.viewer_sequences")
     if s.get("averaging", "sequence") not in ("sequence", "pooled"):  # optional key
         raise InputError("[run] averaging must be 'sequence' or 'pooled'",
                          where=f"{where}: run.averaging")

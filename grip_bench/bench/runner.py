@@ -43,6 +43,8 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
     OUT/tables/metric_validity.{md,csv}  the same as a table, each claim PASS / FAIL
     OUT/manifest.json              versions, git revision, profile, config, seeds, data hash,
                                    wall time per stage (docs/contract.md, "Results")
+    OUT/viewer/*.html, index.json  3D pages of each method's worst / median test sequence
+                                   ([run] viewer_sequences), linked from the HTML report
     OUT/run.log                    what each run did (appended)
 
 Cache keys (``bench.plan``): ``bench.cache.unit_key(kind, inputs)`` where ``inputs`` holds
@@ -182,11 +184,40 @@ def assemble_validity(st: RunState) -> None:
                       json.dumps(jsonable(record), sort_keys=True, indent=1) + "\n")
 
 
+def assemble_viewer(st: RunState) -> None:
+    """``OUT/viewer/``: 3D pages of each leaderboard method's worst, median, ... clean test
+    sequence (``[run] viewer_sequences``, default 2; 0 removes earlier pages) and their
+    ``index.json``, which the report links (``report.viewer``). Needs the cache's prediction
+    folders, so it runs here, not in ``grip-bench report``."""
+    from ..methods.api import variants
+    from ..report.viewer import DEFAULT_VIEWER_SEQUENCES, RUN_MAX_FRAMES, write_run_pages
+    from ..results.schema import read_results
+
+    out = st.cfg.out
+    n = int(st.cfg.settings.get("viewer_sequences", DEFAULT_VIEWER_SEQUENCES))
+    skip = variants() | {"gt"}  # ablations have their own tables; gt is on every page
+    sources = {}
+    for u in st.plan.of("metrics"):
+        labels = u.params["labels"]
+        if labels["perturbation"] == CLEAN and labels["split"] == MAIN_SPLIT \
+                and labels["method"] not in skip:
+            sources[labels["method"]] = (st.unit_dir(u.params["prediction"]),
+                                         st.data_dir(u.params["gt"]))
+    frames = read_results(out / "frames.csv") if (out / "frames.csv").is_file() else None
+    pages = write_run_pages(out, read_results(out / "results.csv"), sources, n, frames=frames,
+                            split=MAIN_SPLIT, model_path=st.cfg.model_path,
+                            max_frames=RUN_MAX_FRAMES)
+    if pages:
+        st.log(f"viewer: {len(pages)} pages in {out / 'viewer'} "
+               f"({sum(p['bytes'] for p in pages) / 1e6:.1f} MB)")
+
+
 def stage_report(st: RunState) -> None:
     t0 = time.perf_counter()
     assemble_results(st)
     assemble_figure_data(st)
     assemble_validity(st)
+    assemble_viewer(st)
     written = write_report(st.cfg.out, st.cfg.report_options())
     pngs = [p.name for p in written if p.suffix == ".png"]
     st.log(f"figures: {', '.join(pngs)}" if pngs else "figures: none drawn (no figure data)")

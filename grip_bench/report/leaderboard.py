@@ -217,10 +217,17 @@ def write_leaderboard_html(lb: pd.DataFrame, path: str | os.PathLike,
                            figures: Sequence[str | os.PathLike] = (),
                            metrics_registry: Registry[MetricSpec] | None = None,
                            title: str = "grip-bench leaderboard",
-                           extra_tables: Sequence[TableData] = ()) -> Path:
-    """Self-contained sortable page: the leaderboard, optional paper tables, PNG figures."""
-    from .render import html_page, table_html
+                           extra_tables: Sequence[TableData] = (),
+                           links: Mapping[str, Sequence[tuple[str, str | os.PathLike]]]
+                           | None = None) -> Path:
+    """Self-contained sortable page: the leaderboard, optional paper tables, PNG figures.
 
-    fragments = [table_html(t) for t in leaderboard_tables(lb, metrics_registry, "Leaderboard")]
-    fragments += [table_html(t) for t in extra_tables]
+    ``links``: ``{method: [(text, viewer page path)]}``, linked (relative to the page) after
+    each method's row label."""
+    from .render import html_page, relative_links, table_html
+
+    rel = relative_links(links, Path(path).parent)
+    fragments = [table_html(t, rel)
+                 for t in leaderboard_tables(lb, metrics_registry, "Leaderboard")]
+    fragments += [table_html(t, rel) for t in extra_tables]
     return atomic_write_text(path, html_page(title, fragments, figures))

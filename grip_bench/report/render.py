@@ -16,7 +16,8 @@ import csv
 import html
 import io
 import os
-from collections.abc import Iterable, Sequence
+import posixpath
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -329,7 +330,7 @@ th[aria-sort=ascending]::after{content:' \\25B2'}th[aria-sort=descending]::after
 tbody th{text-align:left;font-weight:normal}tr.section th{font-style:italic;text-align:left;
 border-top:1px solid #aaa}td .ci{color:#666;font-size:85%}td.best .v{font-weight:bold}
 tr.reference{color:#555}.notes{font-size:13px;color:#444}figure{display:inline-block;margin:1em}
-figure img{max-width:560px}"""
+figure img{max-width:560px}.views{font-size:85%;margin-left:.4em}"""
 
 # Click a header to sort each section's rows by that column (numbers by data-v, text
 # otherwise); cells without a value sort last in both directions.
@@ -399,8 +400,39 @@ def _html_head(data: TableData) -> list[str]:
     return rows
 
 
-def table_html(data: TableData) -> str:
-    """An HTML fragment: heading, sortable table, footnotes and notes."""
+Links = Mapping[str, Sequence[tuple[str, str]]]  # method -> [(text, relative href)]
+
+
+def row_method(row: Row) -> str | None:
+    """The one method a row's cells show (None: none, or several)."""
+    methods = {c.filters.get("method") for c in row.cells} - {None, ""}
+    return methods.pop() if len(methods) == 1 else None
+
+
+def _row_label_html(row: Row, links: Links | None) -> str:
+    """A row's label, followed by its method's viewer pages when there are any."""
+    method = row_method(row) if links else None
+    pages = links.get(method, ()) if links and method else ()
+    if not pages:
+        return _esc(row.label)
+    anchors = " ".join(f'<a href="{_esc(href)}">{_esc(text)}</a>' for text, href in pages)
+    return f'{_esc(row.label)}<span class="views">[3D: {anchors}]</span>'
+
+
+def relative_links(links: Mapping[str, Sequence[tuple[str, str | os.PathLike]]] | None,
+                   from_dir: str | os.PathLike) -> Links | None:
+    """``{method: [(text, page path)]}`` with each path made relative to ``from_dir``
+    (forward slashes: a URL)."""
+    if not links:
+        return None
+    return {m: [(text, posixpath.join(*Path(os.path.relpath(p, from_dir)).parts))
+                for text, p in pages] for m, pages in links.items()}
+
+
+def table_html(data: TableData, links: Links | None = None) -> str:
+    """An HTML fragment: heading, sortable table, footnotes and notes.
+
+    ``links``: viewer pages per method, shown after the label of the row of that method."""
     marks, notes = footnotes(data)
     ncol = len(data.columns) + 1
     out = [f'<section id="{_esc(data.id)}">', f"<h2>{_esc(data.title)}</h2>",
@@ -416,7 +448,7 @@ def table_html(data: TableData) -> str:
         for i, row in enumerate(rows, offset):
             cls = ' class="reference"' if row.reference else ""
             cells = "".join(_html_cell(c, marks.get((i, j))) for j, c in enumerate(row.cells))
-            out.append(f'<tr{cls}><th scope="row">{_esc(row.label)}</th>{cells}</tr>')
+            out.append(f'<tr{cls}><th scope="row">{_row_label_html(row, links)}</th>{cells}</tr>')
         offset += len(rows)
         out.append("</tbody>")
     out.append("</table>")
@@ -454,9 +486,10 @@ def html_page(title: str, fragments: Iterable[str],
                       "</body>", "</html>"]) + "\n"
 
 
-def to_html(data: TableData, figures: Sequence[str | os.PathLike] = ()) -> str:
-    """A standalone sortable HTML page for one table."""
-    return html_page(data.title, [table_html(data)], figures)
+def to_html(data: TableData, figures: Sequence[str | os.PathLike] = (),
+            links: Links | None = None) -> str:
+    """A standalone sortable HTML page for one table (``links``: see :func:`table_html`)."""
+    return html_page(data.title, [table_html(data, links)], figures)
 
 
 RENDERERS = {"md": to_markdown, "csv": to_csv, "tex": to_latex, "html": to_html}
@@ -491,16 +524,25 @@ def render_table(
     return render(data, fmt)
 
 
-def _write_all_formats(data: TableData, out: Path, formats: Sequence[str]) -> list[Path]:
-    return [atomic_write_text(out / f"{data.id}.{fmt}", render(data, fmt)) for fmt in formats]
+def _write_all_formats(data: TableData, out: Path, formats: Sequence[str],
+                       links: Mapping[str, Sequence[tuple[str, Path]]] | None = None
+                       ) -> list[Path]:
+    return [atomic_write_text(out / f"{data.id}.{fmt}",
+                              to_html(data, links=relative_links(links, out))
+                              if fmt == "html" and links else render(data, fmt))
+            for fmt in formats]
 
 
 def render_all(results_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
                formats: Sequence[str] = FORMATS,
                metrics_registry: Registry[MetricSpec] | None = None,
                n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
-               averaging: str = "sequence") -> list[Path]:
+               averaging: str = "sequence",
+               links: Mapping[str, Sequence[tuple[str, Path]]] | None = None) -> list[Path]:
     """Write every registered table in every format from ``results_dir`` into ``out_dir``.
+
+    ``links``: ``{method: [(text, viewer page path)]}``; the HTML rows of those methods link
+    to them (relative URLs).
 
     Reads ``results.csv`` (required) and ``runtime.csv`` (optional). With results from one
     dataset the files go to ``out_dir/<table>.<fmt>``; with several, results tables go to
@@ -519,5 +561,5 @@ def render_all(results_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
             data = compute_table(spec, results, runtime, dataset=ds,
                                  metrics_registry=metrics_registry, n_boot=n_boot, seed=seed,
                                  averaging=averaging)
-            written += _write_all_formats(data, out, formats)
+            written += _write_all_formats(data, out, formats, links)
     return written

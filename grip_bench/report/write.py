@@ -92,8 +92,9 @@ def write_figures(out: Path, results: pd.DataFrame, options: dict) -> list[Path]
 
 
 def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
-                       figures: list[Path]) -> list[Path]:
-    """``leaderboard.{csv,md,html}`` of the clean main split (one set per dataset)."""
+                       figures: list[Path], links: dict | None = None) -> list[Path]:
+    """``leaderboard.{csv,md,html}`` of the clean main split (one set per dataset); the HTML
+    links each method to its viewer pages (``links``, :func:`report.viewer.viewer_links`)."""
     from ..methods.api import predicted_hands, variants
     from .leaderboard import (
         leaderboard,
@@ -115,7 +116,8 @@ def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
         written += [write_leaderboard_csv(lb, out / f"{stem}.csv"),
                     write_leaderboard_md(lb, out / f"{stem}.md")]
         if not lb.empty:
-            written.append(write_leaderboard_html(lb, out / f"{stem}.html", figures=figures))
+            written.append(write_leaderboard_html(lb, out / f"{stem}.html", figures=figures,
+                                                  links=links))
     return written
 
 
@@ -137,21 +139,24 @@ def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Pa
     """Tables, figures and leaderboard from ``OUT/results.csv`` (+ runtime.csv, figure data).
 
     Reads only files in ``OUT``: ``grip-bench report OUT`` and the end of ``run`` call this
-    same function, so they write the same bytes.
+    same function, so they write the same bytes. When ``OUT/viewer/index.json`` exists (run's
+    ``[run] viewer_sequences``), HTML rows link each method to its viewer pages.
     """
     from ..results.schema import read_results
     from .render import render_all
+    from .viewer import viewer_links
 
     out = Path(out)
     options = options or report_options(out)
     results = read_results(out / "results.csv")
+    links = viewer_links(out)  # OUT/viewer/index.json, written by run
     written = render_all(out, out / "tables", n_boot=options["bootstrap_n"],
                          seed=options["bootstrap_seed"],
-                         averaging=options.get("averaging", "sequence"))
+                         averaging=options.get("averaging", "sequence"), links=links)
     from .validity import write_validity
 
     validity = write_validity(out)  # when the run measured metric validity
     figures = write_figures(out, results, options) + [p for p in validity if p.suffix == ".png"]
     written += figures + [p for p in validity if p.suffix != ".png"]
-    written += write_leaderboards(out, results, options, figures)
+    written += write_leaderboards(out, results, options, figures, links)
     return written
