@@ -41,6 +41,7 @@ def _metrics_epilog() -> str:
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..core.constants import EVAL_MAX_PHYSICS_FRAMES
+    from .meshopts import add_mesh_flags
 
     p = sub.add_parser("evaluate", help="score predicted sequences against the ground truth",
                        description=DESCRIPTION, epilog=_metrics_epilog(),
@@ -64,6 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="world up axis for gravity: y (SynthGRAB, default) or z (real GRAB)")
     p.add_argument("--model-path", help="MANO/SMPL-X model folder (for body_model smplx data)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_mesh_flags(p)
     p.set_defaults(func=run)
 
 
@@ -82,8 +84,11 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from ..core.errors import InputError
-    from ..metrics.aggregate import evaluate_dirs
+    from ..core.io import ensure_writable_dir
+    from ..data.library import ObjectLibrary
+    from ..metrics.aggregate import evaluate_dirs, match_sequences
     from ..metrics.evaluate import EvalOptions
+    from .meshopts import check_meshes, mesh_options
 
     if args.workers < 1:
         raise InputError(f"should be >= 1, got {args.workers}", "--workers")
@@ -98,17 +103,25 @@ def run(args: argparse.Namespace) -> int:
     options = EvalOptions(max_physics_frames=args.max_physics_frames,
                           max_iv_frames=args.max_iv_frames, model_path=args.model_path, up=up)
     method = args.method or args.pred.resolve().name
+    metrics = _metric_list(args.metrics)
+    options.metric_ids(metrics)  # unknown ids fail before any work
+    pairs, _ = match_sequences(args.pred, args.gt, args.split)
+    meshes = mesh_options(args)
+    reports = check_meshes(ObjectLibrary(args.gt, meshes), [args.gt / rel for rel, _, _ in pairs])
+    ensure_writable_dir(args.out)  # after the checks of the input, before the work
     info = evaluate_dirs(
         args.pred,
         args.gt,
         args.out,
         method=method,
-        metrics=_metric_list(args.metrics),
+        metrics=metrics,
         per_frame=args.per_frame,
         workers=args.workers,
         split=args.split,
         options=options,
         progress=not args.no_progress and sys.stderr.isatty(),
+        mesh_options=meshes,
+        mesh_reports=reports,
     )
     print(f"evaluated {info['n_sequences']} sequence(s) of {info['dataset']}/{info['split']} "
           f"in {info['wall_time_s']:.1f} s; failures: {info['failures']['count']}; "

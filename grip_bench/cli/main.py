@@ -16,7 +16,8 @@ from ..core.version import __version__
 
 # Each module defines ``register(subparsers)`` and sets ``func`` on its parser.
 # Later issues append their subcommand modules here.
-SUBCOMMANDS = ["ls", "data", "export", "evaluate", "validity", "train", "predict", "run", "report"]
+SUBCOMMANDS = ["ls", "data", "export", "evaluate", "validity", "train", "predict", "run", "report",
+               "bench", "view", "render", "study"]
 
 DESCRIPTION = """\
 grip-bench: train and evaluate hand-object interaction motion synthesis
@@ -59,6 +60,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         print(f"error: {e.message}", file=sys.stderr)
+        return 1
+    except OSError as e:  # the system refused a file (permissions, a vanished folder, ...)
+        if args.debug:
+            raise
+        print(f"error: {e.filename or 'file system'}: {e.strerror or e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,12 +21,16 @@ method, checkpoint hash, options and wall time per sequence.
 
 --online streams frame by frame (each output frame uses only frames up to it; no
 future-cue latency, lower accuracy). --no-anet keeps the input wrists. --refine refines
-the input (perturbed) hands instead of generating them (GRIP Tab. 3). --precision bf16
-runs GRIP's networks in bfloat16 (~4x faster GEMMs on CPUs with AVX512-BF16, ~3
-significant digits; the default fp32 is what the tables use)."""
+the input (perturbed) hands instead of generating them (GRIP Tab. 3). --precision sets
+the arithmetic of GRIP's networks: auto (the default) runs bfloat16 where the hardware
+does it natively (AVX512-BF16, AMX or Arm BF16 CPUs, bf16 GPUs: ~2-4x faster GEMMs, ~3
+significant digits) and fp32 elsewhere; bf16 on a CPU that only emulates it is ~4x
+slower than fp32 and warns. `grip-bench run` always uses fp32, as the tables do."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from .meshopts import add_mesh_flags
+
     p = sub.add_parser(
         "predict",
         help="run a trained method and write its sequences",
@@ -45,10 +50,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-anet", action="store_true", help="use the input wrists (no arm denoising)")
     p.add_argument("--online", action="store_true", help="frame-by-frame streaming mode")
     p.add_argument("--refine", action="store_true", help="refine the input hands (perturbed sets)")
-    p.add_argument("--precision", default="fp32", choices=("fp32", "bf16"),
-                   help="arithmetic of GRIP's networks (default fp32)")
+    p.add_argument("--precision", default="auto", choices=("auto", "fp32", "bf16"),
+                   help="arithmetic of GRIP's networks (default auto: bf16 where native)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    add_mesh_flags(p)
     p.set_defaults(func=run)
 
 
@@ -85,7 +91,9 @@ def run(args: argparse.Namespace) -> int:
     from ..bench.stages.predict import predict_files
     from ..core.errors import InputError
     from ..data.library import ObjectLibrary
+    from ..grip.frozen import resolve_precision
     from ..methods.api import PredictContext, load_all
+    from .meshopts import check_meshes, mesh_options
 
     spec = load_all().get(args.method)
     if args.checkpoint is not None and not args.checkpoint.is_file():
@@ -93,12 +101,17 @@ def run(args: argparse.Namespace) -> int:
     root, files = _inputs(args.input, args.split)
     if args.out.resolve() == root.resolve():
         raise InputError("output folder must differ from the input folder", args.out)
+    library = ObjectLibrary(root, mesh_options(args))
+    meshes = check_meshes(library, files)  # bad meshes fail before any work
+    args.precision_run, warning = resolve_precision(args.precision, args.device)
+    if warning:
+        print(f"warning: --precision: {warning}", file=sys.stderr)
     method = spec.build()
     method.load(args.checkpoint, args.device)
-    ctx = PredictContext(library=ObjectLibrary(root), device=args.device, seed=args.seed,
+    ctx = PredictContext(library=library, device=args.device, seed=args.seed,
                          future_frames=args.future_frames, online=args.online,
                          refine=args.refine, use_anet=not args.no_anet,
-                         precision=args.precision, data_dir=root, split=args.split)
+                         precision=args.precision_run, data_dir=root, split=args.split)
     seconds = {}
 
     def done(seq: Sequence, secs: float) -> None:
@@ -106,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
 
     # the runner's prediction stage does the same (one torch thread, meshes and splits)
     predict_files(method, files, root, args.out, ctx, progress=False, on_done=done)
-    _write_manifest(args, root, seconds)
+    _write_manifest(args, root, seconds, meshes)
     total = sum(s["seconds"] for s in seconds.values())
     frames = sum(s["frames"] for s in seconds.values())
     print(f"wrote {len(files)} sequences to {args.out} ({total:.1f} s, "
@@ -114,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_manifest(args: argparse.Namespace, root: Path, seconds: dict) -> None:
+def _write_manifest(args: argparse.Namespace, root: Path, seconds: dict, meshes: dict) -> None:
     from ..core.io import atomic_write_text
     from ..core.version import __version__
 
@@ -125,7 +138,10 @@ def _write_manifest(args: argparse.Namespace, root: Path, seconds: dict) -> None
         "input": str(root.resolve()),
         "options": {"future_frames": args.future_frames, "no_anet": args.no_anet,
                     "online": args.online, "refine": args.refine, "precision": args.precision,
-                    "split": args.split, "seed": args.seed, "device": args.device},
+                    "precision_run": args.precision_run,
+                    "split": args.split, "seed": args.seed, "device": args.device,
+                    "mesh_scale": args.mesh_scale, "accept_repair_mm": args.accept_repair},
+        "meshes": meshes,
         "sequences": seconds,
     }
     atomic_write_text(args.out / "manifest.json", json.dumps(manifest, indent=2) + "\n")

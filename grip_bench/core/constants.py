@@ -5,7 +5,10 @@ Units inside the suite are metres, radians, seconds, kilograms. Reports convert.
 
 # --- Frame rates -------------------------------------------------------------
 GRAB_FPS = 120.0  # GRAB motion capture rate
+NPZ_MAX_MEMBER_BYTES = 4 << 30  # an .npz member larger than this (unpacked) is refused:
+# GRAB's largest arrays are a few MB; a tiny zip can claim terabytes (a zip bomb)
 FPS = 30.0  # the suite's working rate (GRAB subsampled by 4)
+MAX_SOURCE_FPS = 1000.0  # a capture rate above this is a corrupt header (GRAB: 120 fps)
 
 # --- Contact definitions (docs/contract.md, "Definitions") ---------------------------
 CONTACT_THRESHOLD = 0.0045  # m; GRAB's contact distance, defines grasp frames
@@ -236,3 +239,19 @@ GRABNET_SMPLX_BPS_CENTRE = (-0.07, -0.03, 0.0)
 # GRIP's 2 cm because GRAB-T moves hands by up to a few centimetres.
 TOCH_INTERACTION_DISTANCE = 0.03
 TOCH_HIT_THRESHOLD = 0.5  # denoised hit probability above which a correspondence is fitted
+
+# --- object mesh intake (geometry/repair.py, docs/meshes.md) ---
+# A repair may move or invent surface by at most this much (two-sided distance between the
+# input and the repaired surface, mm) unless --accept-repair MM says otherwise.
+MESH_REPAIR_TOLERANCE_MM = 1.0
+MESH_REPAIR_CELL_FRACTION = 1.0 / 3.0  # winding-number grid cell = this x the tolerance
+MESH_REPAIR_MAX_NODES = 500_000  # finest grid cells near the surface (memory/time guard)
+MESH_REPAIR_SAMPLES = 20_000  # surface samples per side for the repair distance
+MESH_REPAIR_MIN_SHELL = 1e-3  # shells enclosing less than this share of the volume are dropped
+MESH_MAX_FACES = 2_000_000  # faces a mesh file may declare (checked before it is loaded)
+MESH_MAX_FILE_BYTES = 256 * 2**20  # formats with no face count in a header (GLB, glTF)
+# Units check on the bounding-box diagonal: GRAB's objects are 2-40 cm across (diagonals
+# ~3-70 cm); a 5x margin each way still separates metres from centimetres (x100) and mm.
+MIN_OBJECT_DIAG = 0.01  # m
+MAX_OBJECT_DIAG = 3.0  # m
+TYPICAL_OBJECT_DIAG = 0.2  # m; the scale hint picks the unit that lands nearest this
