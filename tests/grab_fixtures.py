@@ -124,12 +124,16 @@ FIXTURE_WRIST = (0.11, 0.06, -0.03)
 SUBJECT_SHIFT = (0.012, -0.008, 0.005)
 
 
-def hand_tube(side: str = "right", n_rings: int = 37, n_around: int = 21):
-    """A MANO-sized hand stand-in (778 vertices): an outward-oriented tube from the wrist
-    ring (at :data:`FIXTURE_WRIST`, open) along -x (right; +x left) to a closed tip."""
+def tube(radius_y: float, radius_z: float, n_rings: int = 37,
+         n_around: int = 21) -> tuple[np.ndarray, np.ndarray]:
+    """An outward-oriented elliptic tube along -x: open ring at x = 0, closed far end.
+
+    37 x 21 ring vertices + 1 pole = 778, MANO's vertex count, so MANO's default fingertip
+    ids are valid.
+    """
     t = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
-    rings = [np.stack([np.full(n_around, -0.005 * k), 0.03 * np.cos(t), 0.02 * np.sin(t)], 1)
-             for k in range(n_rings)]
+    rings = [np.stack([np.full(n_around, -0.005 * k), radius_y * np.cos(t),
+                       radius_z * np.sin(t)], 1) for k in range(n_rings)]
     verts = np.concatenate([*rings, [[-0.005 * n_rings, 0.0, 0.0]]])
     faces = []
     for k in range(n_rings - 1):
@@ -142,6 +146,13 @@ def hand_tube(side: str = "right", n_rings: int = 37, n_around: int = 21):
     mesh = trimesh.Trimesh(verts, faces, process=False)
     if mesh.face_normals[0][1:] @ verts[faces[0]].mean(0)[1:] < 0:  # side walls face outward
         faces = faces[:, ::-1]
+    return verts, np.ascontiguousarray(faces)
+
+
+def hand_tube(side: str = "right", n_rings: int = 37, n_around: int = 21):
+    """A MANO-sized hand stand-in (778 vertices): an outward-oriented tube from the wrist
+    ring (at :data:`FIXTURE_WRIST`, open) along -x (right; +x left) to a closed tip."""
+    verts, faces = tube(0.03, 0.02, n_rings, n_around)
     verts = verts + np.asarray(FIXTURE_WRIST)
     if side == "left":
         verts, faces = verts * np.array([-1.0, 1.0, 1.0]), faces[:, ::-1]

@@ -23,6 +23,7 @@ import trimesh
 from grip_bench.bodies import smplx_backend as sb
 from grip_bench.bodies.layouts import MANO_PARENTS, SMPLX_PARENTS
 from grip_bench.core.errors import GripBenchError, MissingModelError, UnsafeFileError
+from tests.grab_fixtures import tube
 
 smplx = pytest.importorskip("smplx")
 
@@ -50,28 +51,8 @@ def fake_chumpy():
 
 
 def cup(n_rings: int = 37, n_around: int = 21) -> tuple[np.ndarray, np.ndarray]:
-    """An outward-oriented cup along -x: open ring at x = 0 (the wrist), closed far end.
-
-    37 x 21 ring vertices + 1 pole = 778, MANO's vertex count, so the default fingertip
-    ids are valid.
-    """
-    t = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
-    rings = [np.stack([np.full(n_around, -0.005 * k), 0.03 * np.cos(t), 0.03 * np.sin(t)], 1)
-             for k in range(n_rings)]
-    verts = np.concatenate([*rings, [[-0.005 * n_rings, 0.0, 0.0]]])
-    faces = []
-    for k in range(n_rings - 1):
-        for i in range(n_around):
-            a, b = k * n_around + i, k * n_around + (i + 1) % n_around
-            faces += [(a, b + n_around, b), (a, a + n_around, b + n_around)]
-    last, pole = (n_rings - 1) * n_around, len(verts) - 1
-    faces += [(last + i, pole, last + (i + 1) % n_around) for i in range(n_around)]
-    faces = np.array(faces)
-    normal = trimesh.Trimesh(verts, faces, process=False).face_normals[0]
-    centre = verts[faces[0]].mean(0)
-    if normal[1:] @ centre[1:] < 0:  # a side wall must face away from the axis
-        faces = faces[:, ::-1]
-    return verts, np.ascontiguousarray(faces)
+    """An outward-oriented round cup along -x (open ring at the wrist, x = 0)."""
+    return tube(0.03, 0.03, n_rings, n_around)
 
 
 def mano_data(rng, ch=None) -> dict:
