@@ -9,7 +9,7 @@ VENV=${VENV:-.venv}
 . "$VENV/bin/activate"
 python -m pip install -q --upgrade pip
 python -m pip install -q torch==2.13.0
-python -m pip install -q -e ".[dev,smplx]"
+python -m pip install -q -e ".[dev,smplx,ray]"
 # the viewer's browser test needs Chromium (Debian's package); installed where we may
 # (root with apt, as on CI), otherwise that test skips and says why
 if ! command -v chromium >/dev/null && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then

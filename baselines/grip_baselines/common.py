@@ -37,6 +37,7 @@ from grip_bench.core.frames import (  # noqa: F401  (U.SIDES, U.MIRROR, ... in t
 )
 from grip_bench.core.threads import single_thread  # noqa: F401  (U.single_thread in the methods)
 from grip_bench.methods.api import TrainContext
+from grip_bench.nn import ddp
 
 if TYPE_CHECKING:
     from grip_bench.bodies.hand import ProceduralHand
@@ -168,12 +169,25 @@ class TrainedMethod:
         raise NotImplementedError
 
     def train(self, data_dir: Path, out: Path, ctx: TrainContext) -> Path:
+        """Fit and save. In a DDP job (:mod:`grip_bench.nn.ddp`) every rank fits, on its
+        own GPU for ``cuda`` (``cuda:LOCAL_RANK``), only rank 0 prints and writes."""
+        d = ddp.current()
         device = resolve_device(ctx.device)
+        if d.active and device.type == "cuda":
+            device = resolve_device(f"cuda:{d.local_rank}")
         cfg = section_config(self.config_cls, ctx.profile, self.section)
+        if hasattr(cfg, "batch_size"):  # a method without batches (nearest) fits on each rank
+            ddp.check_batch(cfg.batch_size, d, f"{self.section}.batch_size")
         with single_thread():
-            models, extra = self.fit(Path(data_dir), cfg, ctx.seed, ctx.progress, device)
+            models, extra = self.fit(Path(data_dir), cfg, ctx.seed, ctx.progress and d.main,
+                                     device)
         meta = train_meta(self.name, Path(data_dir), ctx.seed, cfg, **extra)
-        return save_models(Path(out), models, meta)
+        if d.active:  # N processes train other weights than one (docs/distributed_training.md)
+            meta["nproc"] = d.world
+        if d.main:
+            save_models(Path(out), models, meta)
+        ddp.barrier(d)  # the file exists before any rank returns
+        return Path(out)
 
     def load_checkpoint(
         self, checkpoint: Path | None, device: Device = "cpu"
@@ -379,6 +393,32 @@ def vertex_subset(hand: ProceduralHand, n: int) -> np.ndarray:
 
 def seeded(seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(int(seed))
+
+
+def rank_batches(
+    batches: list[np.ndarray], d: ddp.Dist
+) -> list[tuple[np.ndarray, float]]:
+    """``(this rank's share, loss weight)`` of each global batch of :func:`batches`.
+
+    One process: every batch whole with weight 1. Under DDP every rank holds the same
+    global batches (the same seeded ``rng``) and takes its share; the weight makes DDP's
+    gradient average the mean over the global batch (:func:`grip_bench.nn.ddp.share_weight`).
+    A batch with fewer samples than ranks is skipped by all ranks.
+    """
+    if not d.active:
+        return [(b, 1.0) for b in batches]
+    return [(ddp.rank_share(b, d), ddp.share_weight(len(ddp.rank_share(b, d)), len(b), d))
+            for b in batches if len(b) >= d.world]
+
+
+def backward(loss: torch.Tensor, weight: float) -> None:
+    """``loss.backward()`` of a rank's share, weighted (no op added for weight 1)."""
+    (loss if weight == 1.0 else loss * weight).backward()
+
+
+def rank_seed(seed: int, d: ddp.Dist, *parts: int) -> int:
+    """A seed of its own for rank ``d.rank`` (dropout, sampling noise) from ``(seed, rank)``."""
+    return int(np.random.SeedSequence([int(seed), d.rank, *parts]).generate_state(1)[0])
 
 
 def batches(n: int, size: int, rng: np.random.Generator, shuffle: bool = True) -> list[np.ndarray]:

@@ -50,6 +50,7 @@ from grip_bench.geometry.rotations import (
     rotation_6d_to_matrix,
 )
 from grip_bench.methods.api import MethodSpec, PredictContext, register_method
+from grip_bench.nn import ddp
 
 from . import common as U
 from .bps import basis_points, object_centre
@@ -398,22 +399,39 @@ def _epochs(
     n: int,
     cfg: GrabNetTrainConfig,
     epochs: int,
-    step: Callable[[np.ndarray], torch.Tensor],
+    step: Callable[[torch.nn.Module, np.ndarray], torch.Tensor],
     progress: bool,
     rng: np.random.Generator,
 ) -> torch.nn.Module:
+    """Train ``net`` for ``epochs``; ``step(model, idx)`` is the loss of samples ``idx``
+    through ``model`` (``net``, or its DDP wrapper in a DDP job: each rank its share)."""
     opt = torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    d = ddp.current()
+    model = ddp.wrap(net, d, U.device_of(net))  # BatchNorm over the global batch
     for epoch in range(epochs):
         net.train()
         total = 0.0
-        for idx in U.batches(n, cfg.batch_size, rng):
-            loss = step(idx)
+        for idx, w in U.rank_batches(U.batches(n, cfg.batch_size, rng), d):
+            loss = step(model, idx)
             opt.zero_grad()
-            loss.backward()
+            U.backward(loss, w)
             opt.step()
             total += loss.item() * len(idx)
+        total = ddp.global_sum([total], d)[0]
         U.log(progress, name, f"epoch {epoch + 1}/{epochs} loss {total / n:.4f}")
     return net.eval()
+
+
+class _RefineRun(torch.nn.Module):
+    """:func:`refine` as a module's forward ``(grasp, feed) -> [GraspParams] * n_iters``,
+    so that DDP, which hooks ``forward``, can wrap RefineNet's training iterations."""
+
+    def __init__(self, net: RefineNet, tied: bool) -> None:
+        super().__init__()
+        self.net, self.tied = net, tied
+
+    def forward(self, grasp: GraspParams, feed: DistanceFeed) -> list[GraspParams]:
+        return refine(self.net, grasp, feed, self.tied)
 
 
 def _coarse_inputs(
@@ -447,6 +465,10 @@ def train_grabnet(
 
     torch.manual_seed(seed)
     rng, gen = np.random.default_rng(seed), U.seeded(seed)
+    d = ddp.current()
+    # DDP: the latent samples, noise and CoarseNet rows of a rank's share come from the
+    # rank's own streams; ``rng`` only orders the global batches, the same on every rank
+    row_rng = np.random.default_rng(U.rank_seed(seed, d)) if d.active else rng
     library = ObjectLibrary(data_dir)
     s = collect_samples(
         U.train_sequences(data_dir, cfg.max_sequences, seed), library, cfg, tied, seed
@@ -479,9 +501,11 @@ def train_grabnet(
     coarse = CoarseNetConfig(
         bps_dim=cfg.bps_points, width=cfg.width, hidden=cfg.hidden, latent=cfg.latent
     ).build().to(device)
+    if d.active:  # after the seeded initialisation, identical on every rank
+        gen = U.seeded(U.rank_seed(seed, d, 1))
 
-    def coarse_step(idx: np.ndarray) -> torch.Tensor:
-        out = coarse(bps[idx], index_grasp(target, idx), generator=gen)
+    def coarse_step(net: torch.nn.Module, idx: np.ndarray) -> torch.Tensor:
+        out = net(bps[idx], index_grasp(target, idx), generator=gen)
         return loss(out.grasp, idx, feed_all.subset(idx), mu=out.mu, logvar=out.logvar)[0]
 
     _epochs(name, coarse, coarse.parameters(), len(s.obj), cfg, cfg.epochs_coarse, coarse_step,
@@ -492,25 +516,26 @@ def train_grabnet(
     ).build().to(device)
     refine_net.contact_weights.copy_(_contact_weights(feed_all, target))
 
-    def refine_step(idx: np.ndarray) -> torch.Tensor:
+    def refine_step(net: torch.nn.Module, idx: np.ndarray) -> torch.Tensor:
         feed = feed_all.subset(idx)
         gt = index_grasp(target, idx)
         start = _noisy(gt, cfg, tied, gen)
         n_coarse = int(round(cfg.refine_coarse_share * len(idx)))
         if n_coarse:
-            rows = np.sort(rng.permutation(len(idx))[:n_coarse])
+            rows = np.sort(row_rng.permutation(len(idx))[:n_coarse])
             rec = _coarse_inputs(coarse.eval(), bps[idx[rows]], index_grasp(gt, rows), tied, gen)
             at = torch.as_tensor(rows, device=device)
             start = GraspParams(*(a.index_copy(0, at, b) for a, b in zip(start, rec, strict=True)))
-        steps = refine(refine_net, start, feed, tied)
+        steps = net(start, feed)  # refine() through _RefineRun (DDP sees a forward)
         # Data terms on every step; contact and penetration on the final grasp (the one
         # that is used), which also keeps the distance queries to one per batch.
         last = len(steps) - 1
         total = sum(loss(g, idx, feed, contact=i == last)[0] for i, g in enumerate(steps))
         return total / len(steps)
 
-    _epochs(name, refine_net, refine_net.parameters(), len(s.obj), cfg, cfg.epochs_refine,
-            refine_step, progress, rng)  # fmt: skip
+    _epochs(name, _RefineRun(refine_net, tied), refine_net.parameters(), len(s.obj), cfg,
+            cfg.epochs_refine, refine_step, progress, rng)  # fmt: skip
+    refine_net.eval()
     return coarse, refine_net, len(s.obj)
 
 

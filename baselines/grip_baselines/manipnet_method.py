@@ -26,6 +26,7 @@ import torch
 from grip_bench.core.constants import MANIPNET_FUTURE, MANIPNET_PAST, MANIPNET_VOXEL_RES
 from grip_bench.geometry.rotations import axis_angle_to_rotation_6d, rotation_6d_to_axis_angle
 from grip_bench.methods.api import MethodSpec, PredictContext, register_method
+from grip_bench.nn import ddp
 from grip_bench.nn.terms import penetration_depth, proximity_attention, proximity_l1
 
 from . import common as U
@@ -304,18 +305,23 @@ def train_manipnet(
     contact = (ContactTerms(data, library, cfg.contact_vertices, device)
                if cfg.w_proximity or cfg.w_penetration else None)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    d = ddp.current()  # DDP under torchrun / --nproc: each rank its share of a batch
+    model = ddp.wrap(net, d, torch.device(device))  # BatchNorm over the global batch
+    if d.active:
+        torch.manual_seed(U.rank_seed(seed, d))  # dropout: one stream per rank
     teacher = feats
     for epoch in range(cfg.epochs + cfg.ss_epochs):
-        if epoch >= cfg.epochs:
+        if epoch >= cfg.epochs:  # the same on every rank: same weights, same rng
             feats = _scheduled(net, data, teacher, ncfg, cfg.ss_share, rng)
         net.train()
         total = 0.0
-        for idx in U.batches(len(owner), cfg.batch_size, rng):
-            loss = _loss(net, feats, target, idx, vhand, cfg, contact)
+        for idx, w in U.rank_batches(U.batches(len(owner), cfg.batch_size, rng), d):
+            loss = _loss(model, feats, target, idx, vhand, cfg, contact)
             opt.zero_grad()
-            loss.backward()
+            U.backward(loss, w)
             opt.step()
             total += loss.item() * len(idx)
+        total = ddp.global_sum([total], d)[0]
         U.log(
             progress,
             name,

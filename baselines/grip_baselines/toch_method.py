@@ -42,6 +42,7 @@ from grip_bench.core.constants import (
 from grip_bench.core.errors import InputError
 from grip_bench.core.frames import mirror_points
 from grip_bench.methods.api import MethodSpec, PredictContext, register_method
+from grip_bench.nn import ddp
 
 from . import common as U
 from .toch import (
@@ -243,16 +244,19 @@ def train_toch(
         decoder_hidden=cfg.decoder_hidden,
     ).build().to(device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    d = ddp.current()  # DDP under torchrun / --nproc: each rank its share of a batch
+    model = ddp.wrap(net, d, torch.device(device))
     for epoch in range(cfg.epochs):
         net.train()
         total = 0.0
-        for idx in U.batches(len(windows), cfg.batch_size, rng):
-            out = net(pts[idx], nrm[idx], noisy[idx])
+        for idx, w in U.rank_batches(U.batches(len(windows), cfg.batch_size, rng), d):
+            out = model(pts[idx], nrm[idx], noisy[idx])
             loss = field_losses(out, clean[idx], pos_weight=pos_weight)[0]
             opt.zero_grad()
-            loss.backward()
+            U.backward(loss, w)
             opt.step()
             total += loss.item() * len(idx)
+        total = ddp.global_sum([total], d)[0]
         U.log(progress, name, f"epoch {epoch + 1}/{cfg.epochs} loss {total / len(windows):.4f}")
     return net.eval(), len(windows)
 

@@ -13,7 +13,9 @@ numbers), so an edit of a comment, a docstring or the layout renews nothing, whi
 change to a statement, a name, a constant or an annotation does.
 
 Methods are found through the registry by name (``importlib``), so a unit that runs a
-method names the method's module as an entry itself (``bench.plan``).
+method names the method's module as an entry itself (``bench.plan``); plug-in metrics are
+imported by the metric registry through entry points, so the metric units name their
+modules likewise.
 
 The index reads files under given package roots, so a test can point it at a temporary
 copy of the source tree, edit a file there and see which keys move.
@@ -32,12 +34,13 @@ ROOT_PACKAGES = ("grip_bench", "grip_baselines")
 
 def installed_roots() -> dict[str, Path]:
     """``{top package: folder}`` of ``grip_bench``, ``grip_baselines`` and the top packages of
-    installed method plug-ins (their code is part of their units' keys too)."""
+    installed plug-ins of every group (methods, metrics, tables: their code is part of
+    their units' keys too)."""
     import importlib
 
-    from ..methods.api import plugin_modules
+    from ..core.plugins import plugin_top_packages
 
-    names = [*ROOT_PACKAGES, *(m.split(".")[0] for m in plugin_modules())]
+    names = [*ROOT_PACKAGES, *plugin_top_packages()]
     roots = {}
     for name in dict.fromkeys(names):
         module = importlib.import_module(name)

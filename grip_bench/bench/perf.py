@@ -596,6 +596,41 @@ def _grip_online(scene: Scene, nets: dict, floors: dict, settings: Settings,
     return rows
 
 
+def _grip_stream(scene: Scene, nets: dict, floors: dict, settings: Settings,
+                 progress: Progress) -> list[Row]:
+    """Latency of ``GripStream.step`` (only the new frame's work, state kept across calls)
+    over consecutive frames of the long sequence, fp32 and int8, against the batch-1 floor:
+    the weights' bytes (1/4 in int8) at the GEMV rate at GRIP's weight size."""
+    from ..grip.stream import GripStream, frame_of
+    from ..grip.train import Variant
+
+    gemv = floors["gemv_fp32_grip" if "gemv_fp32_grip" in floors else "gemv_fp32"]
+    seq, rows = scene.long, []
+    n = min(max(settings.repeats * 12, 30), seq.n_frames - 3)
+    frames = [frame_of(seq, t) for t in range(n + 3)]
+    for prec, per_weight, goal in (
+            ("fp32", 4, Goal("min_ratio", 1 / 1.5, "p50 <= 1.5x floor")),
+            ("int8", 1, Goal("max_time", 5.0, "p50 <= 5 ms"))):
+        stream = GripStream(nets, Variant(), scene.library, seq.obj_name, precision=prec,
+                            height=seq.height, hand_scale=seq.hand_scale, fps=seq.fps)
+        for f in frames[:3]:  # warm-up: the kernels' first calls, caches
+            stream.step(f)
+        secs = []
+        for f in frames[3:]:
+            t0 = time.perf_counter()
+            stream.step(f)
+            secs.append(time.perf_counter() - t0)
+        floor_ms = weight_bytes(nets) * per_weight / 4 / (gemv.value * 1e9) * 1e3
+        row = row_from(f"GRIP stream {prec}, GripStream.step (batch 1) p50", Sample(secs, "s"),
+                       1, "ms", "frames/s", floor=floor_ms, goal=goal,
+                       floor_name=f"{weight_bytes(nets) * per_weight / 4 / 2**20:.0f} MiB "
+                                  f"weights / {gemv.name}",
+                       note=f"(p95 {1e3 * float(np.percentile(secs, 95)):.1f} ms, {n} frames)")
+        rows.append(row)
+        progress(f"{row.stage}: {row.time:.1f} ms ({row.note[1:-1]})")
+    return rows
+
+
 def _sensors(scene: Scene, settings: Settings, progress: Progress) -> list[Row]:
     """Stage one on the 300-frame sequence: both hands' ambient (1024 points) and mean-hand
     proximity (99 vertices), as the pipeline and the feature cache run it."""
@@ -689,6 +724,7 @@ def measure_stages(settings: Settings, floors: dict[str, Floor], scene: Scene,
                 raise ValueError("the GRIP rows need the sgemm floors (measure 'floors' too)")
             if "gemv_fp32" in floors:
                 rows += _grip_online(scene, nets, floors, settings, progress)
+                rows += _grip_stream(scene, nets, floors, settings, progress)
         if "sensors" in only:
             rows += _sensors(scene, settings, progress)
         if "iv" in only:

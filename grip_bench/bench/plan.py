@@ -71,6 +71,10 @@ def run_settings(profile: dict, where: str | os.PathLike) -> dict:
     if s.get("viewer_sequences", 0) < 0:  # optional key (runner's report stage)
         raise InputError(f"[run] viewer_sequences is too small: {s['viewer_sequences']}",
                          where=f"{where}: run.viewer_sequences")
+    shard = s.get("shard_sequences", 0)  # optional key
+    if isinstance(shard, bool) or not isinstance(shard, int) or shard < 0:
+        raise InputError(f"[run] shard_sequences must be an integer >= 0 (0 = off): {shard!r}",
+                         where=f"{where}: run.shard_sequences")
     if s.get("averaging", "sequence") not in ("sequence", "pooled"):  # optional key
         raise InputError("[run] averaging must be 'sequence' or 'pooled'",
                          where=f"{where}: run.averaging")
@@ -97,6 +101,8 @@ class RunConfig:
     progress: bool = True
     notes: tuple[str, ...] = ()
     methods_explicit: bool = False  # named by --methods or [run] methods, not derived from tables
+    executor: str = "local"  # "local" (process pool) or "ray" (bench.ray_executor)
+    address: str | None = None  # the Ray cluster (--address); None: a private local instance
 
     @property
     def seed(self) -> int:
@@ -165,7 +171,8 @@ def make_config(profile: str, *, data: str | os.PathLike | None = None,
                 out: str | os.PathLike | None = None, methods: Sequence[str] | None = None,
                 tables: Sequence[str] | None = None, device: str | None = None,
                 workers: int | None = None, model_path: str | None = None,
-                progress: bool = True) -> RunConfig:
+                progress: bool = True, executor: str = "local",
+                address: str | None = None) -> RunConfig:
     """Resolve a :class:`RunConfig`; raises :class:`InputError` on bad choices."""
     name, prof, path = load_run_profile(profile)
     settings = run_settings(prof, path)
@@ -174,6 +181,11 @@ def make_config(profile: str, *, data: str | os.PathLike | None = None,
                          "DIR, the folder holding grab/ and tools/", where="--data")
     if data is not None and not Path(data).is_dir():
         raise InputError("data folder not found", where=data)
+    if executor not in EXECUTORS:
+        raise InputError(f"unknown executor {executor!r} ({' or '.join(EXECUTORS)})",
+                         where="--executor")
+    if address is not None and executor != "ray":
+        raise InputError("only with --executor ray", where="--address")
     device = device or settings["device"]
     _check_device(device)
     chosen_tables = _select_tables(tables, settings["tables"])
@@ -185,7 +197,11 @@ def make_config(profile: str, *, data: str | os.PathLike | None = None,
         tables=chosen_tables, methods=chosen_methods,
         perturbations=tuple(settings["perturbations"]), device=device, workers=workers,
         model_path=model_path, progress=progress, notes=tuple(notes),
-        methods_explicit=bool(methods or settings["methods"]))
+        methods_explicit=bool(methods or settings["methods"]), executor=executor,
+        address=address)
+
+
+EXECUTORS = ("local", "ray")
 
 
 def _check_device(device: str) -> None:
@@ -207,11 +223,24 @@ STAGE_MODULES = {"dataset": "data", "perturbed": "perturb", "checkpoint": "train
                  "validity": "validity"}
 
 
+# What a shard unit runs besides its kind's stage module ([run] shard_sequences > 0).
+SHARD_MODULE = f"{__package__}.stages.shards"
+
+
 def stage_code(kind: str, *modules: str) -> str:
     """Digest of the code a unit of ``kind`` runs: the import closure of its stage module
-    and of ``modules`` (a method's module: methods are found by name, not imported)."""
+    and of ``modules`` (a method's module: methods are found by name, not imported).
+    Units that compute metrics also name the installed metric plug-ins' modules (the
+    registry imports them through entry points, out of sight of the import closure)."""
+    from ..core.plugins import METRICS_GROUP, plugin_modules
+
     entries = [f"{__package__}.stages.{STAGE_MODULES[kind]}", *modules]
+    if kind in _METRIC_KINDS:
+        entries += plugin_modules(METRICS_GROUP)
     return CodeIndex.installed().digest(entries)
+
+
+_METRIC_KINDS = ("metrics", "validity")  # unit kinds whose work computes metrics
 
 
 @dataclass(frozen=True)
@@ -234,6 +263,9 @@ class Plan:
     data_key: str
     dataset: str
     notes: list[str] = field(default_factory=list)
+    # sharded runs: prediction and metrics units are planned once the dataset unit exists
+    # (their shards list its test sequences); the runner plans again after the data stage
+    deferred: bool = False
 
     def of(self, kind: str) -> list[Unit]:
         return [u for u in self.units if u.kind == kind]
@@ -241,7 +273,7 @@ class Plan:
     def lines(self) -> list[str]:
         """Human-readable plan: one line per unit, ``[cached]`` or ``[todo]``."""
         return [f"{'[cached]' if self.cached[u.key] else '[todo]  '} {u.kind:<10} {u.label}"
-                for u in self.units]
+                for u in self.units] + list(self.notes)
 
 
 def _add(
@@ -339,6 +371,9 @@ def _train_units(cfg: RunConfig, data: Unit, units: list[Unit]) -> dict[str, Uni
         ident = _train_identity(spec)
         inputs = {**ident, "data": data.key, "profile": train_cfg,
                   "seed": cfg.seed, "device": cfg.device}
+        nproc = int(cfg.settings.get("train_nproc", 1))
+        if nproc != 1:  # DDP equals one process only up to float rounding: its own unit
+            inputs["nproc"] = nproc  # (absent at 1, so single-process keys are unchanged)
         key = unit_key("checkpoint", inputs)
         if key not in by_key:
             # variants of one family (same factory, a train_key) share cached features:
@@ -404,6 +439,31 @@ def _metric_inputs(cfg: RunConfig, label: str = CLEAN, method: str | None = None
             "options": asdict(eval_options(cfg)), "code": stage_code("metrics")}
 
 
+def shard_sequences(cfg: RunConfig) -> int:
+    """``[run] shard_sequences``: at most this many test sequences per prediction / metrics
+    unit (0: one unit per method and test set, the keys of unsharded runs)."""
+    return int(cfg.settings.get("shard_sequences", 0))
+
+
+def sequence_shards(cfg: RunConfig, data: Unit, cache: Cache) -> list[list[str] | None] | None:
+    """The sequence lists of a method's units on one test set: ``[None]`` (every sequence,
+    one unit) when sharding is off; with ``[run] shard_sequences = N``, the dataset's test
+    sequences (paths relative to its data folder, sorted as evaluation sorts them) in
+    consecutive runs of at most N, so concatenating the shards' per-sequence outputs in
+    order gives the unsharded outputs; None while the dataset unit is not built yet.
+    Perturbed sets hold the same relative paths as the test split they perturb."""
+    n = shard_sequences(cfg)
+    if n <= 0:
+        return [None]
+    if not cache.has(data.key):
+        return None
+    from ..data.splits import sequences_in_split
+
+    root = cache.path(data.key) / "data"
+    rels = sorted(p.relative_to(root).as_posix() for p in sequences_in_split(root, MAIN_SPLIT))
+    return [rels[i:i + n] for i in range(0, len(rels), n)]
+
+
 def _predict_eval_units(
     cfg: RunConfig,
     plan_units: list[Unit],
@@ -411,7 +471,10 @@ def _predict_eval_units(
     sets: dict[str, Unit],
     ckpts: dict[str, Unit | None],
     dataset: str,
+    shards: list[list[str] | None],
 ) -> None:
+    """Per method and test set, a prediction unit and a metrics unit per shard (one shard,
+    ``None``, without sharding: then neither inputs nor labels mention shards)."""
     from ..methods.api import METHODS
 
     for name, labels in method_needs(cfg).items():
@@ -419,24 +482,36 @@ def _predict_eval_units(
         ckpt = ckpts[name]
         for label in labels:
             src = sets[label]
-            inputs = {
-                **_method_inputs(spec, "prediction"),
-                "checkpoint": ckpt.key if ckpt else None,
-                "input": src.key,
-                "split": MAIN_SPLIT,
-                "seed": cfg.seed,
-                "device": cfg.device if spec.trainable else None,
-            }
-            deps = [src.key] + ([ckpt.key] if ckpt else [])
-            pred = _add(plan_units, "prediction", f"predict {name} @ {label}", inputs, deps,
-                        method=name, input=src.key, checkpoint=ckpt.key if ckpt else None,
-                        perturbation=label)
-            labels_ = {"method": name, "dataset": dataset, "split": MAIN_SPLIT,
-                       "perturbation": label}
-            _add(plan_units, "metrics", f"evaluate {name} @ {label}",
-                 {**_metric_inputs(cfg, label, name), "prediction": pred.key, "gt": data.key,
-                  "labels": labels_},
-                 [pred.key, data.key], prediction=pred.key, gt=data.key, labels=labels_)
+            for i, seqs in enumerate(shards):
+                part = {} if seqs is None else {"sequences": seqs}
+                tag = "" if seqs is None else f" [shard {i + 1}/{len(shards)}]"
+                # a shard also runs bench.stages.shards (unsharded keys stay as they were)
+                shard_code = {} if seqs is None else {
+                    "code": stage_code("prediction", spec.factory.__module__, SHARD_MODULE)}
+                inputs = {
+                    **_method_inputs(spec, "prediction"),
+                    **shard_code,
+                    "checkpoint": ckpt.key if ckpt else None,
+                    "input": src.key,
+                    "split": MAIN_SPLIT,
+                    "seed": cfg.seed,
+                    "device": cfg.device if spec.trainable else None,
+                    **part,
+                }
+                deps = [src.key] + ([ckpt.key] if ckpt else [])
+                pred = _add(plan_units, "prediction", f"predict {name} @ {label}{tag}", inputs,
+                            deps, method=name, input=src.key,
+                            checkpoint=ckpt.key if ckpt else None, perturbation=label, **part)
+                labels_ = {"method": name, "dataset": dataset, "split": MAIN_SPLIT,
+                           "perturbation": label}
+                metric_inputs = _metric_inputs(cfg, label, name)
+                if seqs is not None:
+                    metric_inputs["code"] = stage_code("metrics", SHARD_MODULE)
+                _add(plan_units, "metrics", f"evaluate {name} @ {label}{tag}",
+                     {**metric_inputs, "prediction": pred.key, "gt": data.key,
+                      "labels": labels_, **part},
+                     [pred.key, data.key], prediction=pred.key, gt=data.key, labels=labels_,
+                     **part)
 
 
 def timed_methods(cfg: RunConfig) -> list[str]:
@@ -508,14 +583,19 @@ def build_plan(cfg: RunConfig, cache: Cache) -> Plan:
     data = _data_unit(cfg, units)
     sets = _test_sets(cfg, data, units)
     ckpts = _train_units(cfg, data, units)
-    _predict_eval_units(cfg, units, data, sets, ckpts, dataset)
+    shards = sequence_shards(cfg, data, cache)
+    if shards is not None:
+        _predict_eval_units(cfg, units, data, sets, ckpts, dataset, shards)
     _runtime_units(cfg, data, ckpts, units)
     _validity_unit(cfg, data, units)
     order = {k: i for i, k in enumerate(("dataset", "perturbed", "checkpoint", "prediction",
                                           "metrics", "runtime", "validity"))}
     units.sort(key=lambda u: order[u.kind])  # stable: plan order within a kind
     cached = {u.key: cache.has(u.key) for u in units}
-    return Plan(units, cached, data.key, dataset)
+    notes = [] if shards is not None else [
+        f"note: shard_sequences = {shard_sequences(cfg)}: the prediction and metrics units "
+        "are planned once the dataset unit exists (their shards list its test sequences)"]
+    return Plan(units, cached, data.key, dataset, notes, deferred=shards is None)
 
 
 def eval_options(cfg: RunConfig) -> EvalOptions:

@@ -63,8 +63,12 @@ nothing, and the next run does only what is missing. Training writes into
 ``.partial``) resumes there after a kill.
 
 This module runs the stages in order (``STAGE_FUNCTIONS``; the work of each unit kind is
-in ``bench.stages``, the plan in ``bench.plan``, execution in ``bench.execute``) and
-assembles the report. ``grip-bench report OUT`` re-renders tables, leaderboard and figures
+in ``bench.stages``, the plan in ``bench.plan``, execution in ``bench.execute``, or with
+``--executor ray`` as Ray tasks over the same cache in ``bench.ray_executor``) and
+assembles the report. With ``[run] shard_sequences`` > 0 a method's prediction and
+evaluation of a test set are several units (``bench.stages.shards``), planned once the
+dataset exists (:func:`replan`) and merged here into the same bytes as one unit's.
+``grip-bench report OUT`` re-renders tables, leaderboard and figures
 from ``OUT`` alone with ``report.write.write_report``, the very function ``run`` ends with,
 so both write the same bytes.
 """
@@ -72,7 +76,9 @@ so both write the same bytes.
 from __future__ import annotations
 
 import json
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -83,10 +89,9 @@ from .cache import Cache
 from .execute import RunLog, RunState, run_stage
 from .plan import RunConfig, build_plan
 from .stages.data import make_dataset
-from .stages.evaluate import evaluate_set
 from .stages.perturb import make_perturbed
-from .stages.predict import predict_set
 from .stages.runtime import time_method
+from .stages.shards import evaluate_unit, predict_unit
 from .stages.train import train_method
 from .stages.validity import VALIDITY_FILE, measure_validity
 
@@ -125,12 +130,14 @@ def assemble_figure_data(st: RunState) -> None:
     from ..report.figures import write_heatmap_data
 
     figs = st.cfg.out / "figures"
-    stats: dict[str, dict] = {}
+    parts: dict[str, list] = {}  # method -> its clean-split units' stats (shards in order)
     for u in st.plan.of("metrics"):
         labels = u.params["labels"]
-        path = st.unit_dir(u.key) / CONTACT_STATS_FILE
-        if labels["perturbation"] == CLEAN and labels["split"] == MAIN_SPLIT and path.is_file():
-            stats.setdefault(labels["method"], read_npz(path))
+        if labels["perturbation"] == CLEAN and labels["split"] == MAIN_SPLIT:
+            path = st.unit_dir(u.key) / CONTACT_STATS_FILE
+            parts.setdefault(labels["method"], []).append(
+                read_npz(path) if path.is_file() else None)
+    stats = {m: pool_shard_stats(p) for m, p in parts.items() if None not in p}
     from ..methods.api import predicted_hands
 
     methods = [m for m in figure_methods(st.cfg.settings) if m in stats]
@@ -158,6 +165,27 @@ def assemble_figure_data(st: RunState) -> None:
             "offsets": np.cumsum([0, *(len(d) for d in depths)]).astype(np.int64)})
     elif (figs / DEPTH_DATA).exists():
         (figs / DEPTH_DATA).unlink()
+
+
+def pool_shard_stats(parts: list[dict]) -> dict:
+    """One set's ``contact_stats.npz`` arrays from its shards' (in shard order), equal to
+    the unsharded set's: counts and frames sum (int64, exact), depths concatenate in
+    sequence order (``metrics.aggregate.pool_contact_stats``). One part is returned as is."""
+    if len(parts) == 1:
+        return parts[0]
+    out = dict(parts[0])
+    for part in parts[1:]:
+        for key, a in part.items():
+            have = out.get(key)
+            if key == "format" or have is None or not a.size:
+                out.setdefault(key, a)
+            elif not have.size:  # a side no sequence of the earlier shards had
+                out[key] = a
+            elif key.endswith("_depths"):
+                out[key] = np.concatenate([have, a])
+            else:  # *_counts (V,), *_frames (1,)
+                out[key] = have + a
+    return out
 
 
 VALIDITY_REPORT = ("validity.csv", "validity.json", "tables/metric_validity.md",
@@ -196,20 +224,37 @@ def assemble_viewer(st: RunState) -> None:
     out = st.cfg.out
     n = int(st.cfg.settings.get("viewer_sequences", DEFAULT_VIEWER_SEQUENCES))
     skip = variants() | {"gt"}  # ablations have their own tables; gt is on every page
-    sources = {}
+    preds: dict[str, list] = {}  # method -> its clean-split prediction folders (shards)
+    gts: dict[str, Path] = {}
     for u in st.plan.of("metrics"):
         labels = u.params["labels"]
         if labels["perturbation"] == CLEAN and labels["split"] == MAIN_SPLIT \
                 and labels["method"] not in skip:
-            sources[labels["method"]] = (st.unit_dir(u.params["prediction"]),
-                                         st.data_dir(u.params["gt"]))
+            preds.setdefault(labels["method"], []).append(st.unit_dir(u.params["prediction"]))
+            gts[labels["method"]] = st.data_dir(u.params["gt"])
     frames = read_results(out / "frames.csv") if (out / "frames.csv").is_file() else None
-    pages = write_run_pages(out, read_results(out / "results.csv"), sources, n, frames=frames,
-                            split=MAIN_SPLIT, model_path=st.cfg.model_path,
-                            max_frames=RUN_MAX_FRAMES)
+    with tempfile.TemporaryDirectory(prefix="grip-bench-viewer-") as tmp:
+        sources = {m: (_merged_predictions(dirs, Path(tmp) / str(i)), gts[m])
+                   for i, (m, dirs) in enumerate(sorted(preds.items()))}
+        pages = write_run_pages(out, read_results(out / "results.csv"), sources, n,
+                                frames=frames, split=MAIN_SPLIT, model_path=st.cfg.model_path,
+                                max_frames=RUN_MAX_FRAMES)
     if pages:
         st.log(f"viewer: {len(pages)} pages in {out / 'viewer'} "
                f"({sum(p['bytes'] for p in pages) / 1e6:.1f} MB)")
+
+
+def _merged_predictions(dirs: list[Path], dest: Path) -> Path:
+    """The one prediction folder of an unsharded set, or for shards ``dest`` holding links to
+    every shard's sequence files (the viewer reads ``grab/<sequence>.npz``)."""
+    if len(dirs) == 1:
+        return dirs[0]
+    for d in dirs:
+        for f in sorted((d / "grab").rglob("*.npz")):
+            link = dest / "grab" / f.relative_to(d / "grab")
+            link.parent.mkdir(parents=True, exist_ok=True)
+            link.symlink_to(f.resolve())
+    return dest
 
 
 def stage_report(st: RunState) -> None:
@@ -237,7 +282,8 @@ def run_manifest(st: RunState) -> dict:
     config = {"profile_name": cfg.profile_name, "profile_file": cfg.profile_file,
               "run": cfg.settings, "tables": list(cfg.tables), "methods": list(cfg.methods),
               "perturbations": list(cfg.perturbations), "device": cfg.device,
-              "workers": cfg.workers, "data": str(cfg.data) if cfg.data else None,
+              "workers": cfg.workers, "executor": cfg.executor,
+              "data": str(cfg.data) if cfg.data else None,
               "dataset": st.plan.dataset, "report": cfg.report_options(),
               "units": {u.label: u.key for u in st.plan.units}, "cache": st.cache.summary()}
     s = cfg.settings
@@ -264,8 +310,8 @@ def summary_lines(st: RunState) -> list[str]:
 
 # --- the whole run --------------------------------------------------------------------------
 STAGE_FUNCTIONS = (("data", "dataset", make_dataset), ("perturb", "perturbed", make_perturbed),
-                   ("train", "checkpoint", train_method), ("predict", "prediction", predict_set),
-                   ("evaluate", "metrics", evaluate_set), ("runtime", "runtime", time_method),
+                   ("train", "checkpoint", train_method), ("predict", "prediction", predict_unit),
+                   ("evaluate", "metrics", evaluate_unit), ("runtime", "runtime", time_method),
                    ("validity", "validity", measure_validity))
 
 
@@ -279,11 +325,23 @@ def start(cfg: RunConfig) -> RunState:
     log(f"grip-bench run: profile {cfg.profile_name} ({cfg.profile_file}), out {cfg.out}, "
         f"{len(plan.units)} units, {len(plan.units) - todo} cached")
     log(f"methods: {', '.join(cfg.methods) or 'none'}; tables: {', '.join(cfg.tables)}")
-    for note in cfg.notes:
+    for note in (*cfg.notes, *plan.notes):
         log(note)
     if cache.removed_stale:
         log(f"removed {cache.removed_stale} unfinished unit(s) of an interrupted run")
     return RunState(cfg, cache, plan, log)
+
+
+def replan(st: RunState) -> bool:
+    """Plan again when the plan waits for the dataset (``Plan.deferred``: sharding lists its
+    test sequences) and the dataset unit now exists; True when it did. Every unit planned
+    before keeps its key, so nothing done is redone."""
+    if not st.plan.deferred or not st.cache.has(st.plan.data_key):
+        return False
+    st.plan = build_plan(st.cfg, st.cache)
+    for note in st.plan.notes:
+        st.log(note)
+    return True
 
 
 def run(cfg: RunConfig) -> RunState:
@@ -293,8 +351,14 @@ def run(cfg: RunConfig) -> RunState:
     t0 = time.perf_counter()
     st = start(cfg)
     try:
-        for name, kind, fn in STAGE_FUNCTIONS:
-            run_stage(st, name, kind, fn)
+        if cfg.executor == "ray":
+            from .ray_executor import run_ray
+
+            run_ray(st, STAGE_FUNCTIONS, replan)
+        else:
+            for name, kind, fn in STAGE_FUNCTIONS:
+                replan(st)
+                run_stage(st, name, kind, fn)
     except KeyboardInterrupt:
         # a signal between a unit's temp folder and its cleanup must not leave the folder
         st.cache.clean_stale(own=True)

@@ -17,7 +17,7 @@ from ..core.version import __version__
 # Each module defines ``register(subparsers)`` and sets ``func`` on its parser.
 # Later issues append their subcommand modules here.
 SUBCOMMANDS = ["ls", "data", "export", "evaluate", "validity", "train", "predict", "run", "report",
-               "bench", "view", "render", "study"]
+               "bench", "view", "render", "study", "stream"]
 
 DESCRIPTION = """\
 grip-bench: train and evaluate hand-object interaction motion synthesis
@@ -52,7 +52,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except GripBenchError as e:  # a broken plug-in (core.plugins) fails as commands register
+        if "--debug" in (sys.argv[1:] if argv is None else argv):
+            raise
+        print(f"error: {e.message}", file=sys.stderr)
+        return 1
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -40,6 +40,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="processes for data generation and evaluation")
     p.add_argument("--model-path", metavar="DIR",
                    help="MANO / SMPL-X model files (real GRAB: expands PCA hand poses)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where units run: local (this machine's process pool, default) or "
+                   "ray (Ray tasks over the same cache; OUT on a shared filesystem; needs "
+                   'pip install "grip-bench[ray]")')
+    p.add_argument("--address", metavar="ADDR",
+                   help="with --executor ray: the Ray cluster (HOST:PORT of the head, or "
+                   "auto for the one `ray start` made here; default: a private local one)")
     p.add_argument("--dry-run", action="store_true",
                    help="print the plan (cached and missing units) and stop")
     p.add_argument("--quiet", action="store_true", help="no progress bars or log on stderr")
@@ -64,7 +71,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("must be >= 1", where="--workers")
     cfg = make_config(args.profile, data=args.data, out=args.out, methods=args.methods,
                       tables=args.tables, device=args.device, workers=args.workers,
-                      model_path=args.model_path, progress=not args.quiet)
+                      model_path=args.model_path, progress=not args.quiet,
+                      executor=args.executor, address=args.address)
+    if cfg.executor == "ray" and not args.dry_run:
+        from ..bench.ray_executor import import_ray
+
+        import_ray()  # a one-line error before any work when Ray is not installed
     if args.dry_run:
         st = runner.start(cfg)
         print("\n".join(st.plan.lines()))

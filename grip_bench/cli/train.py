@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -10,7 +11,9 @@ DESCRIPTION = """\
 Train METHOD on DATA's train split (early stopping on its val split) and write one
 checkpoint file to --out. Hyper-parameters come from --profile (smoke: seconds, for
 tests; default: the benchmark's; paper: GRIP's network sizes). An interrupted GRIP
-training resumes from <out>.partial when re-run with the same arguments."""
+training resumes from <out>.partial when re-run with the same arguments. --nproc N
+trains with PyTorch DDP on N local processes (batch_size stays the global batch; see
+docs/distributed_training.md); under torchrun each process is one rank."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"), help="device (default cpu)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--nproc", type=int, default=1, metavar="N",
+                   help="train with PyTorch DDP on N local processes (default 1; "
+                   "docs/distributed_training.md)")
     p.set_defaults(func=run)
 
 
@@ -51,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     # the runner's training stage calls the same function: same seed, same bytes
     ctx = TrainContext(profile=profile, seed=args.seed, device=args.device,
                        progress=not args.no_progress)
-    out = train_checkpoint(args.method, args.data, args.out, ctx)
-    print(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
+    out = train_checkpoint(args.method, args.data, args.out, ctx, args.nproc)
+    if int(os.environ.get("RANK", "0") or 0) == 0:  # one line from a torchrun job
+        print(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
     return 0

@@ -455,6 +455,6 @@ def repair(mesh: trimesh.Trimesh, where: Where = None,
             f"repair ({report.method}{': ' + report.reason if report.reason else ''}) moves the "
             f"surface by up to {report.max_mm:.2f} mm, over the {tolerance_mm:g} mm tolerance; "
             f"to accept it pass --accept-repair {math.ceil(report.max_mm * 10) / 10:g} "
-            "(profile key accept_repair_mm)", where=where)
+            "(predict, evaluate)", where=where)
     out.metadata["repair"] = report.as_dict()
     return out, report

@@ -30,6 +30,7 @@ distance decides nothing: a perturbed hand is as likely to float as to penetrate
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -75,6 +76,7 @@ class Options:
     refine: bool = False  # refine the input hands instead of generating them (Tab. 3)
     interaction_distance: float = C.INTERACTION_DISTANCE
     precision: str = "fp32"  # network arithmetic: "fp32" or "bf16" (grip_bench.grip.frozen)
+    gemv: bool = False  # batch-1 GEMV kernels (GripStream; offline keeps addmm's rounding)
 
 
 def _t(a: ArrayLike) -> torch.Tensor:
@@ -138,27 +140,45 @@ def _recursion(
             np.minimum(np.arange(t + 1, t + 1 + n), t + 1 if online else lengths[i] - 1)
             for i in live
         ]
-        lat = anet.encode(_t(np.stack([out[i][t] for i in live])),
-                          _t(np.stack([noisy[i][f] for i, f in zip(live, fut, strict=True)])))
-        res = anet.decode(lat.z[:, 1]).numpy()  # only frame t+1 is kept
+        res = anet_residual(anet, np.stack([out[i][t] for i in live]),
+                            np.stack([noisy[i][f] for i, f in zip(live, fut, strict=True)]))
         for k, i in enumerate(live):
             out[i][t + 1] = noisy[i][t + 1] + res[k]
     return out
 
 
+@torch.no_grad()
+def anet_residual(anet: ANet, current: np.ndarray, future: np.ndarray) -> np.ndarray:
+    """One recursion step: ANet's correction ``(B, 4, 6)`` of the next frame's noisy arms,
+    from the denoised arms ``current (B, 4, 6)`` and the noisy ``future (B, n_future, 4, 6)``
+    (only frame t+1's latent is decoded)."""
+    lat = anet.encode(_t(current), _t(future))
+    return anet.decode(lat.z[:, 1]).numpy()
+
+
+@functools.lru_cache(maxsize=8)
+def procedural_body(height: float, hand_scale: float) -> ProceduralBody:
+    """The procedural body of one subject, built once (~3 ms: a streamed frame's FK must
+    not pay it); its forward pass keeps no state."""
+    from ..bodies.body import ProceduralBody
+
+    return ProceduralBody(height, hand_scale)
+
+
 def _body_fk(
     seq: Sequence, body_pose: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, ProceduralBody]:
-    """Procedural-body FK ``(rot (T,55,3,3), joints (T,55,3))`` of ``seq``.
+    """Procedural-body FK ``(rot (K*T,55,3,3), joints (K*T,55,3))`` of ``seq``.
 
-    With ``body_pose (T, 63)``.
+    With ``body_pose (K*T, 63)``: K poses of each frame, stacked pose-major (one FK call).
     """
-    from ..bodies.body import ProceduralBody
-
-    body = ProceduralBody(seq.height or C.BODY_HEIGHT, seq.hand_scale or 1.0)
+    body = procedural_body(float(seq.height or C.BODY_HEIGHT), float(seq.hand_scale or 1.0))
     d = lambda a: torch.as_tensor(np.asarray(a, np.float64))  # noqa: E731
+    k = len(body_pose) // max(seq.n_frames, 1)
+    go, tr = (np.tile(np.asarray(seq.body[n], np.float64), (k, 1))
+              for n in ("global_orient", "transl"))
     with torch.no_grad():
-        out = body(d(seq.body["global_orient"]), d(body_pose), d(seq.body["transl"]))
+        out = body(d(go), d(body_pose), d(tr))
     return out.rotations.numpy(), out.joints.numpy(), body
 
 
@@ -173,8 +193,9 @@ def set_arms(body_pose: np.ndarray, arms: np.ndarray) -> np.ndarray:
 
 def moved_wrists(seq: Sequence, old_pose: np.ndarray, new_pose: np.ndarray, wrists: dict) -> dict:
     """Apply each FK wrist's rigid change (``old_pose`` -> ``new_pose``) to ``wrists``."""
-    r0, p0, _ = _body_fk(seq, old_pose)
-    r1, p1, _ = _body_fk(seq, new_pose)
+    r, p, _ = _body_fk(seq, np.concatenate([old_pose, new_pose]))  # one FK call for both
+    T = len(old_pose)
+    r0, p0, r1, p1 = r[:T], p[:T], r[T:], p[T:]
     out = {}
     for side in NET_SIDES:
         j = SMPLX_INDEX[f"{side}_wrist"]
@@ -205,7 +226,7 @@ class GripPipeline:
 
     def __init__(self, nets: dict, options: Options):
         # the inference form of each network (BatchNorm folded), built once per network
-        self.nets = {k: frozen(n, options.precision) for k, n in nets.items()}
+        self.nets = {k: frozen(n, options.precision, options.gemv) for k, n in nets.items()}
         self.opt = options
 
     def arms_and_wrists(self, seq: Sequence) -> tuple[np.ndarray, dict]:
@@ -256,10 +277,7 @@ class GripPipeline:
         """Per-frame CNet inputs of one sequence, the encoder rows (frame pairs) and, for each
         output frame, the row and the latent (0: z_t, 1: z_t+1) it decodes."""
         v, cnet, T = self.opt.variant, self.nets["cnet"], seq.n_frames
-        kind = "none" if v.ambient == "none" else v.ambient
-        one = stage_one(library, seq, wrists, kind)
-        amb, prox = sensor_inputs(one.ambient, one.proximity, v)
-        cue = future_cue(one.mean_dist, v.future_frames, seq.fps, online=self.opt.online)
+        feats = self.cnet_frames(seq, library, body_pose, wrists)
         t = np.arange(T)
         if cnet.cfg.n_frames == 1:
             pairs, row, latent = np.stack([t, t], 1), t, np.zeros(T, int)
@@ -271,9 +289,22 @@ class GripPipeline:
             pairs = np.stack([t[:-1], t[1:]], 1)
             row, latent = np.minimum(t, T - 2), (t == T - 1).astype(int)
         cue_rows = pairs[:, 1] if self.opt.online else pairs[:, 0]
+        cue = feats["cue"][cue_rows] if v.future_frames else None
+        return {**feats, "cue": cue, "pairs": pairs, "row": row, "latent": latent}
+
+    def cnet_frames(
+        self, seq: Sequence, library: ObjectLibrary, body_pose: np.ndarray, wrists: dict
+    ) -> dict:
+        """CNet's per-frame inputs of ``seq``: body context ``(T, 154)``, ambient
+        ``(T, 2, A)``, proximity ``(T, 2, 99)`` (the variant's ablations applied) and the future
+        cue ``(T, 4 n)`` of every frame (online: each frame's from that frame alone)."""
+        v = self.opt.variant
+        kind = "none" if v.ambient == "none" else v.ambient
+        one = stage_one(library, seq, wrists, kind)
+        amb, prox = sensor_inputs(one.ambient, one.proximity, v)
+        cue = future_cue(one.mean_dist, v.future_frames, seq.fps, online=self.opt.online)
         return {"body": body_context(seq, wrists, body_pose), "ambient": amb, "proximity": prox,
-                "cue": cue[cue_rows] if v.future_frames else None, "pairs": pairs, "row": row,
-                "latent": latent}
+                "cue": cue}
 
     @torch.no_grad()
     def _run_cnet(self, group: list[dict]) -> list[np.ndarray]:

@@ -20,6 +20,14 @@ vertices alike); measured on the default profile's test split when the weight wa
 ANet is trained residually: it predicts the 6D correction of the noisy arm frames
 (the target of frame t, given clean, is 0) and its head starts at zero, so an undertrained
 ANet leaves the arms as they are instead of replacing them with a blurred mean.
+
+Under torchrun (or ``grip-bench train --nproc N``) the three networks train with DDP
+(gloo, CPU; :mod:`grip_bench.nn.ddp`): ``batch_size`` is the global batch, each rank takes
+its share of every seeded global batch, BatchNorm uses the global batch's statistics, the
+validation loss is reduced over the ranks and only rank 0 writes files
+(docs/distributed_training.md). One process runs the plain path, byte for byte as before.
+GRIP trains on the CPU only: its batches, the hand model of the vertex loss and the
+distance grids of RNet's loss are CPU tensors and numpy, and DDP does not change that.
 """
 
 from __future__ import annotations
@@ -44,6 +52,7 @@ from ..core.errors import InputError
 from ..core.io import atomic_file
 from ..geometry.distance import grid_signed_distance_many
 from ..geometry.rotations import rotation_6d_to_axis_angle, rotation_6d_to_matrix
+from ..nn import ddp
 from ..nn.terms import penetration_depth, proximity_attention, proximity_l1
 from .anet import ANetConfig
 from .cnet import CNetConfig, future_cue_dim
@@ -281,38 +290,59 @@ def _seed(*parts: int) -> int:
     return int(np.random.SeedSequence(list(parts)).generate_state(1)[0])
 
 
-def _evaluate(stage: Stage, bs: int) -> float:
+def _evaluate(stage: Stage, bs: int, d: ddp.Dist = ddp.SINGLE) -> float:
+    """Mean validation loss; under DDP rank r takes the batches r, r + N, ... and the
+    (loss sum, count) pair is reduced, so every rank gets the same value to decide on."""
     stage.model.eval()
     total, n = 0.0, 0
     with torch.no_grad():
-        for s in range(0, stage.n_val, bs):
+        for k, s in enumerate(range(0, stage.n_val, bs)):
+            if k % d.world != d.rank:
+                continue
             idx = np.arange(s, min(s + bs, stage.n_val))
             loss, _ = stage.loss(stage.model, stage.batch("val", idx))
             total, n = total + float(loss) * len(idx), n + len(idx)
+    if d.active:
+        return ddp.global_mean(total, n, d)
     return total / max(n, 1)
 
 
 def _epoch(
-    stage: Stage, opt: torch.optim.Optimizer, bs: int, seed: int, epoch: int, progress: bool
+    stage: Stage, opt: torch.optim.Optimizer, bs: int, seed: int, epoch: int, progress: bool,
+    net: torch.nn.Module | None = None, d: ddp.Dist = ddp.SINGLE,
 ) -> float:
-    """One pass over the train samples in a seeded order; returns the mean loss."""
+    """One pass over the train samples in a seeded order; returns the mean loss.
+
+    ``net``: what the loss calls (the DDP wrapper of ``stage.model`` under DDP). Every rank
+    draws the same global order and takes its share of each global batch of ``bs``.
+    """
     stage.model.train()
-    torch.manual_seed(_seed(seed, STAGES.index(stage.name), epoch, 1))
+    net = stage.model if net is None else net
+    # dropout: one stream per rank under DDP, the single-process stream otherwise
+    rank_part = (d.rank,) if d.active else ()
+    torch.manual_seed(_seed(seed, STAGES.index(stage.name), epoch, 1, *rank_part))
     order = np.random.default_rng(_seed(seed, STAGES.index(stage.name), epoch)).permutation(
         stage.n_train
     )
-    # drop a last batch of 1: BatchNorm cannot normalise a single sample
-    starts = [s for s in range(0, stage.n_train, bs) if min(bs, stage.n_train - s) > 1]
+    # drop a last batch of 1: BatchNorm cannot normalise a single sample (under DDP also
+    # one with fewer samples than ranks: a rank with nothing has no mean loss)
+    starts = [s for s in range(0, stage.n_train, bs)
+              if min(bs, stage.n_train - s) > max(1, d.world - 1)]
     bar = _bar(starts, f"{stage.name} epoch {epoch + 1}", progress)
     total = 0.0
     for s in bar:
-        loss, terms = stage.loss(stage.model, stage.batch("train", order[s:s + bs]))
+        glob = order[s:s + bs]
+        mine = ddp.rank_share(glob, d) if d.active else glob
+        loss, terms = stage.loss(net, stage.batch("train", mine))
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        w = ddp.share_weight(len(mine), len(glob), d)  # 1.0 unless a last batch splits unevenly
+        (loss * w if w != 1.0 else loss).backward()
         opt.step()
-        total += float(loss.detach())
+        total += float(loss.detach()) * (w / d.world if d.active else 1.0)
         if progress:
             bar.set_postfix({k: f"{float(v.detach()):.4f}" for k, v in terms.items()})
+    if d.active:  # the mean over global batches of the global-batch mean loss
+        total = ddp.global_sum([total], d)[0]
     return total / max(len(starts), 1)
 
 
@@ -352,6 +382,9 @@ def fit(
 
     ``save(st)`` runs after each epoch.
     """
+    d = ddp.current()
+    ddp.check_batch(hp["batch_size"], d, "grip.batch_size")
+    net = ddp.wrap(stage.model, d)  # stage.model itself for one process
     opt = torch.optim.Adam(stage.model.parameters(), lr=hp["lr"], weight_decay=hp["weight_decay"])
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
         opt, factor=hp["lr_factor"], patience=hp["lr_patience"]
@@ -361,8 +394,8 @@ def fit(
         sched.load_state_dict(st.scheduler)
     st.train_curve, st.val_curve = st.train_curve or [], st.val_curve or []
     while not st.done and st.epoch < epochs:
-        train_loss = _epoch(stage, opt, hp["batch_size"], seed, st.epoch, progress)
-        val_loss = _evaluate(stage, hp["batch_size"])
+        train_loss = _epoch(stage, opt, hp["batch_size"], seed, st.epoch, progress, net, d)
+        val_loss = _evaluate(stage, hp["batch_size"], d)
         sched.step(val_loss)
         st.train_curve.append(train_loss)
         st.val_curve.append(val_loss)
@@ -379,6 +412,7 @@ def fit(
                   f" lr {opt.param_groups[0]['lr']:.2e}", flush=True)
         save(st)
     stage.model.load_state_dict(st.best_state)
+    ddp.broadcast_module(stage.model, d)  # identical already; rank 0's bits by construction
     return st
 
 
@@ -509,7 +543,6 @@ def train_grip(
     and variant is kept as it is. Returns ``out``.
     """
     from ..data.grab_io import dataset_hash
-    from ..data.library import ObjectLibrary
 
     if device != "cpu":
         raise InputError("GRIP training runs on the CPU in this suite (use --device cpu)", "device")
@@ -517,13 +550,44 @@ def train_grip(
     hp = dict(profile["grip"])
     seed = hp["seed"] if seed is None else int(seed)
     hp["seed"] = seed
+    d = ddp.current()  # a DDP job under torchrun / --nproc, else one process
+    ddp.check_batch(hp["batch_size"], d, "grip.batch_size")
+    progress = progress and d.main
     data_hash = dataset_hash(data_dir)
     fp = _fingerprint(hp, variant, data_hash, seed)
-    if _already_trained(out, fp):
+    if d.active:  # N processes train other weights than one: never mix their partials
+        fp["nproc"] = d.world
+    if ddp.agree(_already_trained(out, fp), d):
         return out
     # features are shared by every variant trained on the same data (keyed by its hash)
     cache = Path(feature_cache) if feature_cache else out.parent / ".grip-cache"
-    data = {
+    with ddp.main_first(d):  # rank 0 fills the feature cache, the others read it
+        data = _features(data_dir, cache, variant, seed, data_hash, progress)
+    configs = build_configs(hp, variant)
+    partial = out.with_name(out.name + ".partial")
+    models_done, states = _load_partial(partial, fp)
+    shared = _shared_anet_path(cache, fp, configs["anet"])
+    with deterministic():
+        nets = _build_nets(configs, seed, models_done)
+        _train_stages(nets, states, data, hp, variant, data_dir, (partial, configs, fp, shared),
+                      seed, progress, d)
+    meta = {**fp, "curves": {k: {"train": s.train_curve, "val": s.val_curve, "epochs": s.epoch}
+                             for k, s in states.items()},
+            "variant": asdict(variant), "profile": profile.get("name", "?"),
+            "n_frames": {s: len(fs) for s, fs in data.items()}}
+    if d.main:
+        save_checkpoint(out, model_state={k: m.state_dict() for k, m in nets.items()},
+                        configs=configs, meta=meta)
+        partial.unlink(missing_ok=True)
+    ddp.barrier(d)  # the file exists before any rank returns
+    return out
+
+
+def _features(
+    data_dir: Path, cache: Path, variant: Variant, seed: int, data_hash: str, progress: bool
+) -> dict[str, FrameSet]:
+    """The train and val :class:`FrameSet` (built once per data hash into ``cache``)."""
+    return {
         s: build_split(
             data_dir,
             s,
@@ -535,38 +599,42 @@ def train_grip(
         )
         for s in ("train", "val")
     }
-    configs = build_configs(hp, variant)
-    partial = out.with_name(out.name + ".partial")
-    models_done, states = _load_partial(partial, fp)
-    shared = _shared_anet_path(cache, fp, configs["anet"])
-    with deterministic():
-        nets = _build_nets(configs, seed, models_done)
-        for name in STAGES:
-            st = states.get(name, StageState())
-            if name == "anet" and not st.done:
-                st = _load_shared_anet(shared, nets["anet"]) or st
-            if st.done:
-                states[name] = st
-                continue
-            stage = _make_stage(name, nets, data, hp, variant, ObjectLibrary(data_dir))
-            epochs = hp[f"epochs_{name}"]
 
-            def save(s: StageState, name: str = name) -> None:
-                states[name] = s
+
+def _train_stages(
+    nets: dict, states: dict, data: dict, hp: dict, variant: Variant, data_dir: Path,
+    files: tuple, seed: int, progress: bool, d: ddp.Dist,
+) -> None:
+    """ANet, CNet, RNet in turn (a finished stage is skipped); ``states`` is updated.
+
+    ``files``: (partial checkpoint, configs, fingerprint, shared ANet path). Only rank 0
+    writes; a file that decides what to do is read by rank 0 and its answer broadcast.
+    """
+    from ..data.library import ObjectLibrary
+
+    partial, configs, fp, shared = files
+    for name in STAGES:
+        st = states.get(name, StageState())
+        if name == "anet" and not st.done:
+            # rank 0 reads the shared ANet and hands it to the others: one decision
+            got = ddp.agree(_load_shared_anet(shared, nets["anet"]) if d.main else None, d)
+            if got is not None and not d.main:
+                nets["anet"].load_state_dict(got.best_state)
+            st = got or st
+        if st.done:
+            states[name] = st
+            continue
+        stage = _make_stage(name, nets, data, hp, variant, ObjectLibrary(data_dir))
+        epochs = hp[f"epochs_{name}"]
+
+        def save(s: StageState, name: str = name) -> None:
+            states[name] = s
+            if d.main:
                 _save_partial(partial, nets, configs, states, fp)
 
-            states[name] = fit(stage, hp, st, seed, epochs, save, progress)
-            if name == "anet":
-                _save_shared_anet(shared, nets["anet"], states[name])
-    meta = {**fp, "curves": {k: {"train": s.train_curve, "val": s.val_curve, "epochs": s.epoch}
-                             for k, s in states.items()},
-            "variant": asdict(variant), "profile": profile.get("name", "?"),
-            "n_frames": {s: len(d) for s, d in data.items()}}
-    save_checkpoint(
-        out, model_state={k: m.state_dict() for k, m in nets.items()}, configs=configs, meta=meta
-    )
-    partial.unlink(missing_ok=True)
-    return out
+        states[name] = fit(stage, hp, st, seed, epochs, save, progress)
+        if name == "anet" and d.main:
+            _save_shared_anet(shared, nets["anet"], states[name])
 
 
 # --- ANet shared by the variants ------------------------------------------------------------

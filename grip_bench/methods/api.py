@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
+from ..core.plugins import METHODS_GROUP, load_group
+from ..core.plugins import plugin_modules as core_plugin_modules
 from ..core.registry import Registry
 
 if TYPE_CHECKING:
@@ -144,30 +146,21 @@ def register_method(spec: MethodSpec) -> MethodSpec:
 # Third-party methods register through this entry-point group: in the plug-in's
 # pyproject.toml, ``[project.entry-points."grip_bench.methods"] my-method = "my_pkg.my_module"``
 # names a module whose import registers the method (docs/architecture.md, "How to add a
-# method").
-PLUGIN_GROUP = "grip_bench.methods"
+# method"; ``core.plugins`` finds the entry points of every group).
+PLUGIN_GROUP = METHODS_GROUP
 
 
 def plugin_modules() -> list[str]:
     """Modules named by installed ``grip_bench.methods`` entry points, sorted."""
-    from importlib.metadata import entry_points
-
-    return sorted({ep.value.split(":")[0].strip() for ep in entry_points(group=PLUGIN_GROUP)})
+    return core_plugin_modules(PLUGIN_GROUP)
 
 
 def load_all() -> Registry[MethodSpec]:
     """Import every method module (ours, then installed plug-ins) so that :data:`METHODS`
     is complete. A plug-in that fails to import is an :class:`InputError` naming it."""
-    from ..core.errors import InputError
-
     for module in METHOD_MODULES:
         importlib.import_module(module)
-    for module in plugin_modules():
-        try:
-            importlib.import_module(module)
-        except Exception as e:  # noqa: BLE001 - any failure of third-party code
-            raise InputError(f"plug-in module {module!r} failed to import: "
-                             f"{type(e).__name__}: {e}", f"entry points {PLUGIN_GROUP}") from e
+    load_group(PLUGIN_GROUP)
     return METHODS
 
 

@@ -147,9 +147,11 @@ def _frames_30fps(h: dict) -> int:
 
 def _check_headers(pred_path: Path, ph: dict, gt_path: Path, gh: dict) -> None:
     """A prediction must be of the ground truth's take: same object, subject, intent and
-    length (a prediction of another subject's take would be scored against wrong hands)."""
+    length (a prediction of another subject's take would be scored against wrong hands), and
+    of the same body model (a prediction is posed with the ground truth's hand model, so
+    hand parameters of another model would be read in the wrong convention)."""
     for key, what in (("obj_name", "object"), ("sbj_id", "subject"),
-                      ("motion_intent", "intent")):
+                      ("motion_intent", "intent"), ("body_model", "body model")):
         if ph[key] != gh[key]:
             raise InputError(f"{what} '{ph[key]}', but the ground truth {gt_path} has "
                              f"'{gh[key]}'", pred_path)

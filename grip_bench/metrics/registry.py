@@ -3,7 +3,10 @@ version and the function that computes it (docs/contract.md, "Definitions").
 
 Metrics register where they are computed (``metrics.evaluate``, with :func:`metric`), as
 torchmetrics and lm-evaluation-harness do: a spec and its code cannot drift apart. This
-module imports ``evaluate`` at its end, so ``METRICS`` is complete once it is imported.
+module imports ``evaluate`` at its end, then the modules of installed plug-ins (entry-point
+group ``grip_bench.metrics``, ``core.plugins``), which register theirs with the same
+decorator, so ``METRICS`` is complete once it is imported, in every process (a worker
+imports this module too). A plug-in that fails is an ``InputError`` naming it.
 """
 
 from __future__ import annotations
@@ -65,3 +68,21 @@ def metric(id: str, name: str, unit: str, scale: float, higher_is_better: bool,
 
 
 from . import evaluate as _evaluate  # noqa: E402, F401  (registers every metric)
+
+
+def plugin_modules() -> list[str]:
+    """Modules named by installed ``grip_bench.metrics`` entry points, sorted (their code is
+    in the metric units' keys: ``bench.plan.stage_code``)."""
+    from ..core.plugins import METRICS_GROUP
+    from ..core.plugins import plugin_modules as modules
+
+    return modules(METRICS_GROUP)
+
+
+def _load_plugins() -> None:
+    from ..core.plugins import METRICS_GROUP, load_group
+
+    load_group(METRICS_GROUP)
+
+
+_load_plugins()  # after the suite's own metrics: plug-ins come last in tables and results

@@ -92,7 +92,8 @@ def validate_profile(data: dict, schema: dict, where: Path) -> dict:
 
 
 # Keys added after profiles were in users' hands: a profile without them gets the default's.
-OPTIONAL_KEYS = {"run": ("averaging", "validity_sequences", "viewer_sequences")}
+OPTIONAL_KEYS = {"run": ("averaging", "validity_sequences", "viewer_sequences",
+                         "shard_sequences", "train_nproc")}
 
 
 def load_profile(name: str | Path = "default") -> dict:

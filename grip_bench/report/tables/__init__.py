@@ -12,6 +12,9 @@ perturbed input). Rows with ``reference = true`` (ground truth, perturbed input)
 marked best. ``source = "runtime"`` tables read ``runtime.csv`` instead; their columns name
 a ``field`` of that file.
 
+Installed plug-ins add tables through the ``grip_bench.tables`` entry-point group
+(:func:`plugin_table_files`); they come after the suite's own and may not reuse an id.
+
 File format (all keys listed in ``_TABLE_KEYS`` / ``_ROW_KEYS`` / ``_COLUMN_KEYS``)::
 
     id = "table4_future"          # = the file name
@@ -238,16 +241,68 @@ def load_table(path: str | Path) -> TableSpec:
     return parse_table(data, path)
 
 
-def _builtin_tables() -> Registry[TableSpec]:
+def _toml_files(package: str) -> list[Path]:
+    """The ``*.toml`` files of a package's resource folder, sorted by name."""
+    folder = resources.files(package)
+    return sorted((Path(str(e)) for e in folder.iterdir() if e.name.endswith(".toml")),
+                  key=lambda p: p.name)
+
+
+def plugin_table_files(value: str) -> list[Path]:
+    """Table files of one ``grip_bench.tables`` entry point: ``"pkg.tables"`` names a
+    package whose resource folder holds ``*.toml`` tables; ``"pkg.mod:attr"`` names an
+    iterable of paths, or a callable returning one. Errors name the entry point."""
+    from ...core.plugins import TABLES_GROUP, import_plugin
+
+    name, _, attr = (part.strip() for part in value.partition(":"))
+    where = f"entry points {TABLES_GROUP}: {value}"
+    module = import_plugin(name, TABLES_GROUP)
+    if not attr:
+        if not hasattr(module, "__path__"):
+            raise InputError("names a module, not a package with table files (use "
+                             "'module:attribute' for a module listing its paths)", where)
+        return _toml_files(name)
+    if not hasattr(module, attr):
+        raise InputError(f"module {name!r} has no attribute {attr!r}", where)
+    found = getattr(module, attr)
+    try:
+        paths = [Path(p) for p in (found() if callable(found) else found)]
+    except Exception as e:  # noqa: BLE001 - any failure of third-party code
+        raise InputError(f"cannot list table paths: {type(e).__name__}: {e}", where) from e
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise InputError(f"table file(s) not found: {', '.join(missing)}", where)
+    return paths
+
+
+def _plugin_specs() -> list[TableSpec]:
+    from ...core.plugins import TABLES_GROUP, entry_values
+
+    specs = []
+    for value in entry_values(TABLES_GROUP):
+        for path in plugin_table_files(value):
+            try:
+                specs.append(load_table(path))
+            except InputError as e:
+                raise InputError(f"plug-in table of {value!r}: {e.what}", e.where) from e
+    return specs
+
+
+def _all_tables() -> Registry[TableSpec]:
+    """The suite's tables (this folder), then those of installed plug-ins; an id used twice
+    is an error naming the second file."""
     reg: Registry[TableSpec] = Registry("table")
-    folder = resources.files(__name__)
-    specs = [load_table(Path(str(e))) for e in folder.iterdir() if e.name.endswith(".toml")]
-    for spec in sorted(specs, key=lambda s: (s.order, s.id)):
+    builtin = [load_table(p) for p in _toml_files(__name__)]
+    for spec in [*sorted(builtin, key=lambda s: (s.order, s.id)),
+                 *sorted(_plugin_specs(), key=lambda s: (s.order, s.id))]:
+        if spec.id in reg:
+            raise InputError(f"table id {spec.id!r} is already defined by "
+                             f"{reg.get(spec.id).path}", spec.path)
         reg.register(spec.id, spec)
     return reg
 
 
-TABLES: Registry[TableSpec] = _builtin_tables()
+TABLES: Registry[TableSpec] = _all_tables()
 
 
 # --- computed tables ------------------------------------------------------------------------
