@@ -143,6 +143,7 @@ def test_train_predict_evaluate(trained: Path, data: Path) -> None:
     assert tip["unit"] == "mm" and int(tip["n_frames"]) > 0 and 0 < float(tip["value"]) < 100
 
 
+@pytest.mark.slow  # keeps the default run under 10 minutes; `pytest -m slow` runs it
 def test_run(venv: Path, data: Path, trained: Path, tmp_path: Path) -> None:
     profile = tmp_path / "tiny.toml"
     profile.write_text(PROFILE, encoding="utf-8")

@@ -199,6 +199,7 @@ def test_address_needs_the_ray_executor(tiny, tmp_path, capsys):
     assert "--address" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # keeps the default run under 10 minutes; `pytest -m slow` runs it
 @needs_ray
 def test_ray_run_on_a_private_instance_matches_the_local_run(tiny):
     """Without --address the driver starts a private local Ray instance (one CPU here);

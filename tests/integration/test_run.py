@@ -157,6 +157,7 @@ def test_runtime_leaderboard_and_manifest(finished):
 
 
 # --- reuse -----------------------------------------------------------------------------------
+@pytest.mark.slow  # keeps the default run under 10 minutes; `pytest -m slow` runs it
 def test_parallel_workers_give_the_same_results(finished, tiny, tmp_path):
     """Predictions in 2 worker processes: the same bytes as the one-process run."""
     out = tmp_path / "w2"
