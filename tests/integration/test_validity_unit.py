@@ -20,36 +20,14 @@ from grip_bench.bench.stages.validity import VALIDITY_FILE, measure_validity
 from grip_bench.cli.main import main
 from grip_bench.metrics import validity as V
 from tests.eval_fixtures import grasp_dataset
-
-PROFILE = """
-[run]
-data = "synth"
-synth_profile = "tiny"
-data_seed = {data_seed}
-dataset = ""
-tables = ["table4_grasp"]
-methods = ["gt"]
-extra_methods = []
-perturbations = []
-perturb_seed = 0
-seed = {seed}
-metrics = ["mpjpe", "mpvpe", "cc", "contact_ratio"]
-per_frame = false
-device = "cpu"
-bootstrap_seed = 0
-bootstrap_n = 200
-runtime_sequences = 1
-runtime_repeats = 1
-physics_frames = 4
-iv_frames = 0
-figure_methods = []
-validity_sequences = {n}
-"""
+from tests.run_fixtures import tiny_run_profile
 
 
 def _plan(tmp_path: Path, n: int = 2, seed: int = 0, data_seed: int = 0):
     path = tmp_path / f"p_{n}_{seed}_{data_seed}.toml"
-    path.write_text(PROFILE.format(n=n, seed=seed, data_seed=data_seed), encoding="utf-8")
+    # viewer_sequences 2: the optional key's default
+    tiny_run_profile(path, validity_sequences=n, seed=seed, data_seed=data_seed,
+                     viewer_sequences=2)
     cfg = make_config(str(path), out=tmp_path / "out", progress=False)
     return build_plan(cfg, Cache(tmp_path / "out" / "cache"))
 

@@ -10,39 +10,21 @@ from pathlib import Path
 import pytest
 
 from grip_bench.cli.main import main
+from tests.run_fixtures import tiny_run_profile
 
-PROFILE = """
-[run]
-data = "synth"
-synth_profile = "tiny"
-data_seed = 0
-dataset = ""
-tables = ["table4_grasp"]
-methods = ["gt", "mean-pose"]
-extra_methods = []
-perturbations = []
-perturb_seed = 0
-seed = 0
-metrics = ["mpjpe", "mpvpe", "contact_ratio"]
-per_frame = true
-device = "cpu"
-bootstrap_seed = 0
-bootstrap_n = 50
-runtime_sequences = 0
-runtime_repeats = 1
-physics_frames = 0
-iv_frames = 0
-figure_methods = []
-validity_sequences = 0
-viewer_sequences = {n}
-"""
+VIEWER_RUN = {"methods": ["gt", "mean-pose"], "metrics": ["mpjpe", "mpvpe", "contact_ratio"],
+              "per_frame": True, "bootstrap_n": 50, "runtime_sequences": 0, "physics_frames": 0}
+
+
+def _profile(path, n: int):
+    return tiny_run_profile(path, **VIEWER_RUN, viewer_sequences=n)
 
 
 @pytest.fixture(scope="module")
 def run_out(tmp_path_factory):
     root = tmp_path_factory.mktemp("viewer_run")
     for n in (2, 0):
-        (root / f"p{n}.toml").write_text(PROFILE.format(n=n), encoding="utf-8")
+        _profile(root / f"p{n}.toml", n)
     out = root / "out"
     assert main(["run", "--profile", str(root / "p2.toml"), "--out", str(out), "--workers", "1",
                  "--quiet"]) == 0
@@ -95,6 +77,6 @@ def test_viewer_sequences_zero_removes_pages_and_links(run_out):
 def test_negative_viewer_sequences_is_an_input_error(run_out, capsys):
     root, out = run_out
     bad = root / "bad.toml"
-    bad.write_text(PROFILE.format(n=-1), encoding="utf-8")
+    _profile(bad, -1)
     assert main(["run", "--profile", str(bad), "--out", str(out), "--quiet"]) == 1
     assert "viewer_sequences is too small" in capsys.readouterr().err
