@@ -78,7 +78,36 @@ def run_settings(profile: dict, where: str | os.PathLike) -> dict:
     if s.get("averaging", "sequence") not in ("sequence", "pooled"):  # optional key
         raise InputError("[run] averaging must be 'sequence' or 'pooled'",
                          where=f"{where}: run.averaging")
+    run_seeds(s, where)  # optional key: checked here, used by the planner
+    from ..data.capture_noise import MODELS
+
+    noise = s.get("capture_noise", "none")  # optional key
+    if noise not in MODELS:
+        raise InputError(f"[run] capture_noise must be one of {', '.join(map(repr, MODELS))}: "
+                         f"{noise!r}", where=f"{where}: run.capture_noise")
+    if noise != "none" and s["data"] != "synth":
+        raise InputError("[run] capture_noise applies to generated SynthGRAB data (data = "
+                         "'synth'); real GRAB is captured with its own noise",
+                         where=f"{where}: run.capture_noise")
     return s
+
+
+def run_seeds(settings: dict, where: str | os.PathLike = "profile") -> tuple[int, ...]:
+    """The run's training seeds: ``[run] seed`` first (its rows keep the plain method names),
+    then the other entries of ``[run] seeds`` in their order; ``seeds = []`` (or absent)
+    is ``(seed,)``. A non-empty ``seeds`` must list ``seed`` and no seed twice."""
+    seed, seeds = settings["seed"], settings.get("seeds", [])
+    bad = [x for x in seeds if isinstance(x, bool) or not isinstance(x, int) or x < 0]
+    if bad:
+        raise InputError(f"[run] seeds must be integers >= 0: {bad[0]!r}",
+                         where=f"{where}: run.seeds")
+    if len(set(seeds)) != len(seeds):
+        raise InputError(f"[run] seeds lists a seed twice: {list(seeds)}",
+                         where=f"{where}: run.seeds")
+    if seeds and seed not in seeds:
+        raise InputError(f"[run] seeds {list(seeds)} must include seed = {seed} (the seed "
+                         "whose rows keep the plain method names)", where=f"{where}: run.seeds")
+    return (int(seed), *(int(x) for x in seeds if x != seed))
 
 
 # --- configuration --------------------------------------------------------------------------
@@ -107,6 +136,11 @@ class RunConfig:
     @property
     def seed(self) -> int:
         return int(self.settings["seed"])
+
+    @property
+    def seeds(self) -> tuple[int, ...]:
+        """Training seeds, :attr:`seed` first (:func:`run_seeds`)."""
+        return run_seeds(self.settings)
 
     def report_options(self) -> dict:
         """What ``report`` needs to re-render (saved in the manifest)."""
@@ -225,6 +259,8 @@ STAGE_MODULES = {"dataset": "data", "perturbed": "perturb", "checkpoint": "train
 
 # What a shard unit runs besides its kind's stage module ([run] shard_sequences > 0).
 SHARD_MODULE = f"{__package__}.stages.shards"
+# What a dataset unit with capture noise runs besides generation ([run] capture_noise).
+CAPTURE_MODULE = f"{__package__}.stages.capture"
 
 
 def stage_code(kind: str, *modules: str) -> str:
@@ -300,8 +336,15 @@ def _data_unit(cfg: RunConfig, units: list[Unit]) -> Unit:
         return _add(units, "dataset", f"import {cfg.data}", inputs, source_hash=source)
     inputs = {"source": "synthgrab", "profile": s["synth_profile"], "seed": s["data_seed"],
               "code": stage_code("dataset")}
-    return _add(units, "dataset", f"synthgrab profile={s['synth_profile']} seed={s['data_seed']}",
-                inputs)
+    title = f"synthgrab profile={s['synth_profile']} seed={s['data_seed']}"
+    noise = s.get("capture_noise", "none")
+    if noise != "none":  # absent at "none", so noise-free keys are unchanged
+        from ..data.capture_noise import MODELS
+
+        inputs["capture_noise"] = {"model": noise, **asdict(MODELS[noise])}
+        inputs["code"] = stage_code("dataset", CAPTURE_MODULE)
+        title += f" capture_noise={noise}"
+    return _add(units, "dataset", title, inputs)
 
 
 def _table_cells(cfg: RunConfig) -> Iterator[tuple[ColumnSpec, dict]]:
@@ -356,33 +399,42 @@ def _train_identity(spec: MethodSpec) -> dict:
             "code": stage_code("checkpoint", spec.factory.__module__)}
 
 
-def _train_units(cfg: RunConfig, data: Unit, units: list[Unit]) -> dict[str, Unit | None]:
+Checkpoints = dict[tuple[str, int], Unit | None]  # (method, seed) -> its checkpoint unit
+
+
+def _train_units(cfg: RunConfig, data: Unit, units: list[Unit]) -> Checkpoints:
+    """A checkpoint unit per trainable method and seed (``[run] seeds``; the first seed's
+    units are those of a single-seed run), None for a fixed method (its first seed only)."""
     from ..methods.api import METHODS
 
-    out: dict[str, Unit | None] = {}
+    out: Checkpoints = {}
     by_key: dict[str, Unit] = {}
-    leaders: dict[str, str] = {}  # family -> key of its first checkpoint unit
+    leaders: dict[tuple, str] = {}  # (family, seed) -> key of its first checkpoint unit
     train_cfg = {k: v for k, v in cfg.profile.items() if k not in ("run", "name")}
-    for name in cfg.methods:
-        spec = METHODS.get(name)
-        if not spec.trainable:
-            out[name] = None
-            continue
-        ident = _train_identity(spec)
-        inputs = {**ident, "data": data.key, "profile": train_cfg,
-                  "seed": cfg.seed, "device": cfg.device}
-        nproc = int(cfg.settings.get("train_nproc", 1))
-        if nproc != 1:  # DDP equals one process only up to float rounding: its own unit
-            inputs["nproc"] = nproc  # (absent at 1, so single-process keys are unchanged)
-        key = unit_key("checkpoint", inputs)
-        if key not in by_key:
-            # variants of one family (same factory, a train_key) share cached features:
-            # the first builds them, the others start after it (run_parallel)
-            family = ident.get("factory")
-            after = leaders.setdefault(family, key) if family else None
-            by_key[key] = _add(units, "checkpoint", f"train {name}", inputs, [data.key],
-                               method=name, after=None if after == key else after)
-        out[name] = by_key[key]
+    for seed in cfg.seeds:
+        for name in cfg.methods:
+            spec = METHODS.get(name)
+            if not spec.trainable:
+                if seed == cfg.seed:
+                    out[(name, seed)] = None
+                continue
+            ident = _train_identity(spec)
+            inputs = {**ident, "data": data.key, "profile": train_cfg,
+                      "seed": seed, "device": cfg.device}
+            nproc = int(cfg.settings.get("train_nproc", 1))
+            if nproc != 1:  # DDP equals one process only up to float rounding: its own unit
+                inputs["nproc"] = nproc  # (absent at 1, so single-process keys are unchanged)
+            key = unit_key("checkpoint", inputs)
+            if key not in by_key:
+                # variants of one family (same factory, a train_key) share cached features
+                # and, per seed, ANet: the first builds them, the others start after it
+                family = ident.get("factory")
+                after = leaders.setdefault((family, seed), key) if family else None
+                tag = "" if seed == cfg.seed else f" (seed {seed})"
+                extra = {} if seed == cfg.seed else {"seed": seed}
+                by_key[key] = _add(units, "checkpoint", f"train {name}{tag}", inputs, [data.key],
+                                   method=name, after=None if after == key else after, **extra)
+            out[(name, seed)] = by_key[key]
     return out
 
 
@@ -469,17 +521,30 @@ def _predict_eval_units(
     plan_units: list[Unit],
     data: Unit,
     sets: dict[str, Unit],
-    ckpts: dict[str, Unit | None],
+    ckpts: Checkpoints,
     dataset: str,
     shards: list[list[str] | None],
 ) -> None:
-    """Per method and test set, a prediction unit and a metrics unit per shard (one shard,
-    ``None``, without sharding: then neither inputs nor labels mention shards)."""
-    from ..methods.api import METHODS
+    """Per method, seed and test set, a prediction unit and a metrics unit per shard (one
+    shard, ``None``, without sharding: then neither inputs nor labels mention shards).
 
-    for name, labels in method_needs(cfg).items():
+    A trainable method runs once per seed of ``[run] seeds``; the first seed's units and
+    result rows are exactly a single-seed run's, a further seed's rows are labelled
+    ``<method>@seed<N>`` (``report.tables.seed_label``) and its units carry ``seed`` in their
+    parameters (the runner trains and predicts them with that seed)."""
+    from ..methods.api import METHODS
+    from ..report.tables import seed_label
+
+    needs = method_needs(cfg)
+    runs = [(name, seed) for seed in cfg.seeds for name in needs if (name, seed) in ckpts]
+    for name, seed in runs:
+        labels = needs[name]
         spec = METHODS.get(name)
-        ckpt = ckpts[name]
+        ckpt = ckpts[(name, seed)]
+        first = seed == cfg.seed  # the first seed's units and rows are a single-seed run's
+        row_name = name if first else seed_label(name, seed)
+        stag = "" if first else f" (seed {seed})"
+        extra = {} if first else {"seed": seed}
         for label in labels:
             src = sets[label]
             for i, seqs in enumerate(shards):
@@ -494,20 +559,21 @@ def _predict_eval_units(
                     "checkpoint": ckpt.key if ckpt else None,
                     "input": src.key,
                     "split": MAIN_SPLIT,
-                    "seed": cfg.seed,
+                    "seed": seed,
                     "device": cfg.device if spec.trainable else None,
                     **part,
                 }
                 deps = [src.key] + ([ckpt.key] if ckpt else [])
-                pred = _add(plan_units, "prediction", f"predict {name} @ {label}{tag}", inputs,
-                            deps, method=name, input=src.key,
-                            checkpoint=ckpt.key if ckpt else None, perturbation=label, **part)
-                labels_ = {"method": name, "dataset": dataset, "split": MAIN_SPLIT,
+                pred = _add(plan_units, "prediction", f"predict {name} @ {label}{tag}{stag}",
+                            inputs, deps, method=name, input=src.key,
+                            checkpoint=ckpt.key if ckpt else None, perturbation=label, **part,
+                            **extra)
+                labels_ = {"method": row_name, "dataset": dataset, "split": MAIN_SPLIT,
                            "perturbation": label}
                 metric_inputs = _metric_inputs(cfg, label, name)
                 if seqs is not None:
                     metric_inputs["code"] = stage_code("metrics", SHARD_MODULE)
-                _add(plan_units, "metrics", f"evaluate {name} @ {label}{tag}",
+                _add(plan_units, "metrics", f"evaluate {row_name} @ {label}{tag}",
                      {**metric_inputs, "prediction": pred.key, "gt": data.key,
                       "labels": labels_, **part},
                      [pred.key, data.key], prediction=pred.key, gt=data.key, labels=labels_,
@@ -527,15 +593,14 @@ def timed_methods(cfg: RunConfig) -> list[str]:
     return [m for m in cfg.methods if m in named]
 
 
-def _runtime_units(
-    cfg: RunConfig, data: Unit, ckpts: dict[str, Unit | None], units: list[Unit]
-) -> None:
+def _runtime_units(cfg: RunConfig, data: Unit, ckpts: Checkpoints, units: list[Unit]) -> None:
+    """Timing units of the first seed's checkpoints (a seed does not change the cost)."""
     from ..methods.api import METHODS
 
     s = cfg.settings
     for name in timed_methods(cfg):
         spec = METHODS.get(name)
-        ckpt = ckpts[name]
+        ckpt = ckpts[(name, cfg.seed)]
         inputs = {**_method_inputs(spec, "runtime"), "checkpoint": ckpt.key if ckpt else None,
                   "data": data.key, "device": cfg.device, "sequences": s["runtime_sequences"],
                   "repeats": s["runtime_repeats"], "seed": cfg.seed}

@@ -75,9 +75,12 @@ so both write the same bytes.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import tempfile
 import time
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -87,13 +90,15 @@ from ..report.write import DEPTH_DATA, DEPTH_FORMAT, HEATMAP_DATA, figure_method
 from ..results.layout import CLEAN, MAIN_SPLIT
 from .cache import Cache
 from .execute import RunLog, RunState, run_stage
-from .plan import RunConfig, build_plan
+from .plan import RunConfig, Unit, build_plan
 from .stages.data import make_dataset
 from .stages.perturb import make_perturbed
 from .stages.runtime import time_method
 from .stages.shards import evaluate_unit, predict_unit
 from .stages.train import train_method
 from .stages.validity import VALIDITY_FILE, measure_validity
+
+StageFunction = Callable[[RunState, Unit, Path], dict]
 
 
 # --- stage: report --------------------------------------------------------------------------
@@ -223,13 +228,15 @@ def assemble_viewer(st: RunState) -> None:
 
     out = st.cfg.out
     n = int(st.cfg.settings.get("viewer_sequences", DEFAULT_VIEWER_SEQUENCES))
+    from ..report.tables import is_seed_label
+
     skip = variants() | {"gt"}  # ablations have their own tables; gt is on every page
     preds: dict[str, list] = {}  # method -> its clean-split prediction folders (shards)
     gts: dict[str, Path] = {}
     for u in st.plan.of("metrics"):
         labels = u.params["labels"]
         if labels["perturbation"] == CLEAN and labels["split"] == MAIN_SPLIT \
-                and labels["method"] not in skip:
+                and labels["method"] not in skip and not is_seed_label(labels["method"]):
             preds.setdefault(labels["method"], []).append(st.unit_dir(u.params["prediction"]))
             gts[labels["method"]] = st.data_dir(u.params["gt"])
     frames = read_results(out / "frames.csv") if (out / "frames.csv").is_file() else None
@@ -309,8 +316,32 @@ def summary_lines(st: RunState) -> list[str]:
 
 
 # --- the whole run --------------------------------------------------------------------------
-STAGE_FUNCTIONS = (("data", "dataset", make_dataset), ("perturb", "perturbed", make_perturbed),
-                   ("train", "checkpoint", train_method), ("predict", "prediction", predict_unit),
+def with_unit_seed(fn: StageFunction, st: RunState, unit: Unit, tmp: Path) -> dict:
+    """Run stage function ``fn`` for ``unit`` with the unit's own training seed: a unit of a
+    further seed of ``[run] seeds`` carries ``seed`` in its parameters (``bench.plan``), and
+    the stages read the seed from the run's configuration, so it is swapped in there. Units
+    without one (every unit of a single-seed run) run with the state as it is."""
+    seed = unit.params.get("seed")
+    if seed is not None and seed != st.cfg.seed:
+        cfg = dataclasses.replace(st.cfg, settings={**st.cfg.settings, "seed": int(seed)})
+        st = dataclasses.replace(st, cfg=cfg)  # same cache, plan, log and loaded methods
+    return fn(st, unit, tmp)
+
+
+def dataset_unit(st: RunState, unit: Unit, tmp: Path) -> dict:
+    """A ``dataset`` unit: generation or import (``stages.data``), then the capture-noise
+    model when the unit's inputs name one (``[run] capture_noise``; ``stages.capture``,
+    which only such units import, so noise-free dataset keys do not depend on it)."""
+    if "capture_noise" not in unit.params["inputs"]:
+        return make_dataset(st, unit, tmp)
+    from .stages.capture import make_noisy_dataset
+
+    return make_noisy_dataset(st, unit, tmp)
+
+
+STAGE_FUNCTIONS = (("data", "dataset", dataset_unit), ("perturb", "perturbed", make_perturbed),
+                   ("train", "checkpoint", partial(with_unit_seed, train_method)),
+                   ("predict", "prediction", partial(with_unit_seed, predict_unit)),
                    ("evaluate", "metrics", evaluate_unit), ("runtime", "runtime", time_method),
                    ("validity", "validity", measure_validity))
 

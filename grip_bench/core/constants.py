@@ -25,6 +25,9 @@ AMBIENT_DECAY = 5.0  # feature exp(-5 d)
 PROXIMITY_N_VERTS = 99
 PROXIMITY_DECAY = 50.0  # feature exp(-50 d)
 FUTURE_FRAMES = 10
+# grip-blind's object input (sensors.object_pose_feature), per hand: the object frame's
+# origin in the wrist frame (3, m) and the object's rotation in the wrist frame (6D)
+OBJECT_POSE_DIM = 3 + 6
 
 # --- Hand anatomy ------------------------------------------------------------
 HAND_LENGTH = 0.19  # m, default adult hand length (wrist crease to middle tip)
@@ -94,6 +97,11 @@ TOCH_T_SIGMAS = (0.01, 0.02)  # m, hand translation
 TOCH_R_SIGMAS = (0.3, 0.5)  # rad, each hand-joint axis-angle component
 ANET_SHOULDER_SIGMA = 0.01  # rad
 ANET_ELBOW_SIGMA = 0.03  # rad
+# ANet's second training noise: the wrist translation noise of GRAB-T's larger level, mapped
+# to the arms by IK (the perturbation family the TOCH-style refiner also trains on).
+ANET_WRIST_SIGMA = 0.02  # m, per axis and frame
+ANET_NOISE_SCALE = (0.25, 1.25)  # per-sample scale of either training noise (grip.train)
+ANET_WRIST_SHARE = 0.5  # share of ANet's training samples that carry the wrist noise
 
 # --- body ---
 BODY_HEIGHT = 1.7  # m, default stature of the procedural body
@@ -145,6 +153,7 @@ HOLD_FINGER_KP = 10.0  # N m / rad; finger joint position servos
 HOLD_FINGER_KV = 0.3  # N m s / rad; about critical damping with the armature below
 HOLD_FINGER_TORQUE = 0.3  # N m; servo torque cap: a human finger joint exerts ~1 N m at most
 HOLD_BONE_MASS = 0.005  # kg per finger bone (gravity-compensated: the hand does not sag)
+HOLD_CONE_EDGES = 8  # edges of the linearised friction cone in metrics.hold.plan_forces
 HOLD_ARMATURE = 2e-3  # kg m^2; reflected inertia of a finger joint: servo period ~90 ms >> SIM_DT
 SIM_FREE_FALL_5 = 0.5 * GRAVITY * SIM_DT**2 * SIM_PAPER_STEPS * (SIM_PAPER_STEPS + 1)
 # m (2.55 mm): free fall over the support test's 5 semi-implicit Euler steps, printed beside it
@@ -239,6 +248,9 @@ GRABNET_SMPLX_BPS_CENTRE = (-0.07, -0.03, 0.0)
 # GRIP's 2 cm because GRAB-T moves hands by up to a few centimetres.
 TOCH_INTERACTION_DISTANCE = 0.03
 TOCH_HIT_THRESHOLD = 0.5  # denoised hit probability above which a correspondence is fitted
+# nearest-arm: frame offsets of its key window around t (30 fps: +-1/3 s), clamped at the
+# sequence's ends (offline: the window reads 10 future frames, as GRIP's offline cue does)
+NEAREST_ARM_OFFSETS = (-10, -5, 0, 5, 10)
 
 # --- object mesh intake (geometry/repair.py, docs/meshes.md) ---
 # A repair may move or invent surface by at most this much (two-sided distance between the
@@ -255,3 +267,20 @@ MESH_MAX_FILE_BYTES = 256 * 2**20  # formats with no face count in a header (GLB
 MIN_OBJECT_DIAG = 0.01  # m
 MAX_OBJECT_DIAG = 3.0  # m
 TYPICAL_OBJECT_DIAG = 0.2  # m; the scale hint picks the unit that lands nearest this
+
+# --- counterfactual geometry split (data/synth/counterfactual.py, metrics/sensitivity.py) ---
+# A twin's object is its source instance stretched in the object frame's horizontal plane
+# (x, z) about the point of the surface nearest the palm, so the palm keeps its contact and
+# the object keeps standing on the table; (name, x factor, z factor), tried in a seeded order.
+CF_VARIANTS = (
+    ("smaller", 0.8, 0.8), ("larger", 1.25, 1.25),
+    ("narrower_x", 0.8, 1.0), ("wider_x", 1.25, 1.0),
+    ("narrower_z", 1.0, 0.8), ("wider_z", 1.0, 1.25),
+)
+CF_INTENTS = ("lift", "pass", "use")  # one-hand intents: one grasp, one palm to keep in place
+CF_TWIN_TRIES = 3  # variants tried per source episode before it yields no pair
+CF_MIN_CHANGE = 0.002  # m; the closed hand must move some vertex this far, else no pair
+CF_SPLIT = "counterfactual"  # the split label of the pairs (pairs.json, the table)
+# metrics/sensitivity.py: the GT change (RMS over held frames and vertices) below which the
+# share of the change reproduced is not defined (NaN)
+CF_MIN_GT_RMS = 1e-4  # m

@@ -20,6 +20,11 @@ Two tests share one scene per frame:
   the object moves < 1 mm in 5 steps of 1/240 s. Free fall alone moves it 2.55 mm
   (``SIM_FREE_FALL_5``), so the test tells "something supports it" from "nothing does".
 
+- **Force check** (quasi-static, no simulation): :func:`plan_forces` finds contact forces
+  inside linearised friction cones that cancel a load with zero torque (least largest
+  normal force, a linear programme); :func:`force_ratio` applies it to the hand vertices
+  within ``HOLD_TOUCH`` of the object. Measurements: docs/physics_hold.md.
+
 Collision geometry is ``geometry.pieces``: the object's and the hand's pieces stick out at
 most ``PIECE_MAX_ERROR`` (measured), so a concave object stays concave and contacts start
 where the surfaces are. Pieces farther than ``HOLD_REACH`` from the other body are left out
@@ -535,6 +540,83 @@ def support(scene: Scene, up: tuple[float, float, float] = C.UP) -> SupportResul
         return SupportResult(float("nan"), False, True)
     disp = float(np.linalg.norm(_pose_of(model, data)[0] - start))
     return SupportResult(disp, disp < C.SIM_STABLE_DISP, False)
+
+
+# ---------------------------------------------------------------- quasi-static force check
+def plan_forces(points: np.ndarray, normals: np.ndarray, com: np.ndarray, load: np.ndarray,
+                mu: float, edges: int = C.HOLD_CONE_EDGES) -> np.ndarray | None:
+    """Contact forces (K, 3) N that the hand exerts on the object at ``points`` (K, 3) m, each
+    inside the friction cone of ``mu`` about its unit ``normals`` (K, 3) (pointing into the
+    object), that cancel ``load`` (3,) N (e.g. the weight, ``m g``) with zero net torque about
+    ``com`` (3,) m; of all such forces the one with the smallest largest normal component (a
+    linear programme). None when no such forces exist (the contacts cannot hold the load).
+
+    The cone is the inscribed pyramid of ``edges`` edges (one edge lies along the first
+    tangent), so the answer is conservative by at most 1 - cos(pi / edges) in ``mu``.
+    """
+    from scipy.optimize import linprog
+
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    k = len(p)
+    if k == 0:
+        return None
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(n, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(n, t1)
+    ang = 2.0 * np.pi * np.arange(edges) / edges
+    e = n[:, None] + mu * (np.cos(ang)[None, :, None] * t1[:, None] +
+                           np.sin(ang)[None, :, None] * t2[:, None])  # (K, E, 3)
+    r = p - np.asarray(com, np.float64)
+    scale = max(float(np.abs(r).max()), 1e-6)  # torque rows in N, as the force rows
+    a_eq = np.concatenate([e.reshape(-1, 3).T, np.cross(r[:, None], e).reshape(-1, 3).T / scale])
+    a_eq = np.concatenate([a_eq, np.zeros((6, 1))], axis=1)
+    b_eq = np.concatenate([-np.asarray(load, np.float64), np.zeros(3)])
+    a_ub = np.concatenate([np.kron(np.eye(k), np.ones((1, edges))), -np.ones((k, 1))], axis=1)
+    cost = np.r_[np.full(k * edges, 1e-3), 1.0]  # the max first, then the least total
+    res = linprog(cost, A_ub=a_ub, b_ub=np.zeros(k), A_eq=a_eq, b_eq=b_eq, bounds=(0, None),
+                  method="highs")
+    if res.status != 0:
+        return None
+    return np.einsum("ke,kec->kc", res.x[:-1].reshape(k, edges), e)
+
+
+def force_ratio(hands: list[PosedHand], obj: trimesh.Trimesh,
+                obj_pose: tuple[np.ndarray, np.ndarray] | None = None,
+                up: tuple[float, float, float] = C.UP, mu: float = C.SIM_FRICTION,
+                density: float = C.DEFAULT_DENSITY, gravity: np.ndarray | None = None) -> float:
+    """Quasi-static check: the largest contact normal force (in units of the object's weight)
+    that the hands' vertices within ``HOLD_TOUCH`` of the object need to hold it against
+    gravity (``gravity`` (3,) m/s^2, default ``-g up``) with friction ``mu``; ``inf`` when
+    they cannot (friction cones too narrow, contacts on one side, no contact).
+
+    Contacts are the closest object-surface points of those vertices with the object's inward
+    normals there (the palm counts as a contact like a finger).
+    """
+    from ..geometry.pieces import ExactDistance
+    from .physics import _object_inertia
+
+    R, t = (np.eye(3), np.zeros(3)) if obj_pose is None else (np.asarray(obj_pose[0]),
+                                                               np.asarray(obj_pose[1]))
+    mass, com, _ = _object_inertia(obj, density)
+    verts = [h.vertices[h.signed_dist <= C.HOLD_TOUCH] for h in hands]
+    local = (np.concatenate(verts) - t) @ R if verts else np.zeros((0, 3))
+    if len(local) == 0:
+        return float("inf")
+    import igl
+
+    sdf = ExactDistance(obj.vertices, obj.faces)
+    _, _, closest, normal = igl.signed_distance(
+        np.ascontiguousarray(local), sdf.V, sdf.F,
+        sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
+    g = -C.GRAVITY * np.asarray(up, np.float64) if gravity is None else np.asarray(gravity)
+    weight = mass * float(np.linalg.norm(g))
+    f = plan_forces(closest @ R.T + t, -normal @ R.T, R @ com + t, mass * g, mu)
+    if f is None:
+        return float("inf")
+    return float(np.einsum("kc,kc->k", f, -normal @ R.T).max() / weight)
 
 
 def static_hold(hand_meshes: list[trimesh.Trimesh], obj: trimesh.Trimesh,

@@ -1,4 +1,5 @@
-"""Hyper-parameter profiles as data: ``smoke``, ``default``, ``paper`` (one TOML file each).
+"""Hyper-parameter profiles as data: ``smoke``, ``default``, ``paper``, ``ablation`` (one TOML
+file each).
 
 A profile is a TOML file of sections (``[grip]``, later ``[data]``, ``[grabnet]``, ...).
 The loader is generic: the allowed keys of each section and their types are those of the
@@ -15,7 +16,7 @@ from pathlib import Path
 from ..core.errors import InputError
 
 PROFILE_DIR = Path(__file__).parent
-NAMES = ("smoke", "default", "paper")
+NAMES = ("smoke", "default", "paper", "ablation")
 _SCHEMA = "default"  # the profile whose keys and types every profile must follow
 
 
@@ -93,7 +94,7 @@ def validate_profile(data: dict, schema: dict, where: Path) -> dict:
 
 # Keys added after profiles were in users' hands: a profile without them gets the default's.
 OPTIONAL_KEYS = {"run": ("averaging", "validity_sequences", "viewer_sequences",
-                         "shard_sequences", "train_nproc")}
+                         "shard_sequences", "train_nproc", "seeds", "capture_noise")}
 
 
 def load_profile(name: str | Path = "default") -> dict:

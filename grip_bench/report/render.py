@@ -5,6 +5,9 @@ Conventions shared by all formats: ↓ / ↑ after a header say lower / higher i
 best value per column (per metric, reference rows excluded, ties included) is bold; a cell
 shows ``mean [lo, hi]`` (95% bootstrap interval, omitted when fewer than 2 sequences) or
 ``before → after [lo, hi]``; "–" marks a cell without results; NaN counts are footnoted.
+A seeded table (results of several training seeds, ``TableData.n_seeds`` > 1) adds the
+range of the per-seed means, ``{min–max}``, after a cell of two or more seeds, a verdict
+column when it judges rows (``TableData.verdict_header``), and seed columns to its CSV.
 The output is a pure function of the inputs (no dates, sorted iteration): rendering twice
 gives identical bytes.
 """
@@ -78,6 +81,21 @@ def _has_ci(ci: CI | None) -> bool:
 
 def _shown(ci: CI | None) -> bool:
     return ci is not None and not np.isnan(ci.mean)
+
+
+def seed_range(cell: Cell) -> tuple[float, float] | None:
+    """(min, max) of a cell's finite per-seed means when it has two or more, else None."""
+    m = np.asarray(cell.seed_means, dtype=np.float64)
+    m = m[np.isfinite(m)]
+    return (float(m.min()), float(m.max())) if len(m) >= 2 else None
+
+
+def seed_text(cell: Cell) -> str:
+    """`` {min–max}`` of a seeded cell's per-seed means (empty for a single seed)."""
+    r = seed_range(cell)
+    if r is None:
+        return ""
+    return f" {{{fmt_num(r[0], cell.decimals)}–{fmt_num(r[1], cell.decimals)}}}"
 
 
 def header_spans(columns: Sequence[Column]) -> list[tuple[Column, int, bool]]:
@@ -159,23 +177,26 @@ def _md_cell(cell: Cell, mark: int | None) -> str:
         if _has_ci(cell.ci):
             after += (f" [{fmt_num(cell.ci.lo, cell.decimals)}, "
                       f"{fmt_num(cell.ci.hi, cell.decimals)}]")
-        text = after
+        text = after + seed_text(cell)
     return text + (str(mark).translate(_SUPERSCRIPT) if mark else "")
 
 
 def to_markdown(data: TableData, heading_level: int = 3) -> str:
     """GitHub-flavoured Markdown: one header row, section rows in bold, notes below."""
     marks, notes = footnotes(data)
-    ncol = len(data.columns) + 1
+    verdict = [data.verdict_header] if data.verdict_header else []
+    ncol = len(data.columns) + 1 + len(verdict)
     lines = [f"{'#' * heading_level} {_md_escape(data.title)}", "",
              f"`{data.id}` v{data.version}: {_md_escape(data.description)}", "",
              "| " + " | ".join([data.row_header] + [_md_escape(flat_header(c))
-                                                   for c in data.columns]) + " |",
-             "|:--" + "|--:" * (ncol - 1) + "|"]
+                                                   for c in data.columns]
+                               + [_md_escape(v) for v in verdict]) + " |",
+             "|:--" + "|--:" * (ncol - 1 - len(verdict)) + "|:--" * len(verdict) + "|"]
     for i, row in enumerate(data.rows):
         if row.group and (i == 0 or data.rows[i - 1].group != row.group):
             lines.append(f"| **{_md_escape(section_title(row))}** |" + " |" * (ncol - 1))
         cells = [_md_cell(c, marks.get((i, j))) for j, c in enumerate(row.cells)]
+        cells += [_md_escape(row.verdict or MISSING)] if verdict else []
         lines.append("| " + " | ".join([_md_escape(row.label)] + cells) + " |")
     lines.append("")
     lines += [f"{str(k).translate(_SUPERSCRIPT)} {_md_escape(t)}  " for k, t in
@@ -203,11 +224,34 @@ def _bool(v: bool | None) -> str:
     return "" if v is None else ("true" if v else "false")
 
 
+# appended to CSV_COLUMNS in seeded tables (TableData.n_seeds > 1) only
+SEED_CSV_COLUMNS = ("n_seeds", "seed_means", "seed_min", "seed_max", "seed_std", "diff",
+                    "diff_ci_low", "diff_ci_high", "diff_n", "seed_spread", "verdict")
+
+
+def _seed_fields(cell: Cell) -> list[str]:
+    """A seeded cell's per-seed means (``;``-joined, first seed first), their min, max and
+    std (ddof 1; NaN below two seeds) and, when judged, the difference to the reference row,
+    its paired interval, the seed spread and the verdict."""
+    m = np.asarray(cell.seed_means, dtype=np.float64)
+    fin = m[np.isfinite(m)]
+    stats = ["", "", ""] if not len(fin) else [
+        format_float(fin.min()), format_float(fin.max()),
+        format_float(fin.std(ddof=1) if len(fin) > 1 else np.nan)]
+    j = cell.judged
+    judged = [""] * 6 if j is None else [
+        format_float(j.diff), *(_ci_fields(j.ci)[1:4] if j.ci is not None else ["", "", "0"]),
+        format_float(j.spread), j.verdict or ""]
+    return [str(len(m)), ";".join(format_float(x) for x in m), *stats, *judged]
+
+
 def to_csv(data: TableData) -> str:
-    """Tidy CSV: one line per cell with full-precision values (shortest round-trip floats)."""
+    """Tidy CSV: one line per cell with full-precision values (shortest round-trip floats);
+    a seeded table appends :data:`SEED_CSV_COLUMNS`."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(CSV_COLUMNS)
+    seeded = data.n_seeds > 1
+    w.writerow(CSV_COLUMNS + (SEED_CSV_COLUMNS if seeded else ()))
     for row in data.rows:
         for col, cell in zip(data.columns, row.cells, strict=True):
             f = cell.filters
@@ -219,7 +263,7 @@ def to_csv(data: TableData) -> str:
                         *_ci_fields(cell.ci),
                         (cell.before_method or "") if cell.paired else "",
                         *(_ci_fields(before) if cell.paired else [""] * 5),
-                        _bool(cell.best)])
+                        _bool(cell.best), *(_seed_fields(cell) if seeded else [])])
     return buf.getvalue()
 
 
@@ -265,6 +309,10 @@ def _tex_cell(cell: Cell, mark: int | None) -> str:
         if _has_ci(cell.ci):
             after += (rf" {{\scriptsize [{fmt_num(cell.ci.lo, cell.decimals)}, "
                       rf"{fmt_num(cell.ci.hi, cell.decimals)}]}}")
+        r = seed_range(cell)
+        if r is not None:
+            after += (rf" {{\scriptsize \{{{fmt_num(r[0], cell.decimals)}--"
+                      rf"{fmt_num(r[1], cell.decimals)}\}}}}")
         text = after
     return text + (f"$^{{{mark}}}$" if mark else "")
 
@@ -272,9 +320,10 @@ def _tex_cell(cell: Cell, mark: int | None) -> str:
 def _tex_header(data: TableData) -> list[str]:
     spans = header_spans(data.columns)
     two_rows = any(c.label for c in data.columns)
+    verdict = [tex_escape(data.verdict_header)] if data.verdict_header else []
     if not two_rows:
         heads = [tex_escape(_decorate(c.group, c.unit, c.higher_is_better)) for c in data.columns]
-        return [" & ".join([tex_escape(data.row_header)] + heads) + r" \\"]
+        return [" & ".join([tex_escape(data.row_header)] + heads + verdict) + r" \\"]
     top, rules, bottom, start = [""], [], [tex_escape(data.row_header)], 2
     for col, span, on_group in spans:
         text = tex_escape(group_header(col, on_group))
@@ -285,6 +334,8 @@ def _tex_header(data: TableData) -> list[str]:
             tex_escape(sub_header(c, on_group)) for c in data.columns[start - 2 : start - 2 + span]
         ]
         start += span
+    top += verdict
+    bottom += [""] * len(verdict)
     lines = [" & ".join(top) + r" \\"]
     if rules:
         lines.append(" ".join(rules))
@@ -294,13 +345,14 @@ def _tex_header(data: TableData) -> list[str]:
 def to_latex(data: TableData) -> str:
     """A ``table`` float with a booktabs ``tabular``; needs ``\\usepackage{booktabs}``."""
     marks, notes = footnotes(data)
-    ncol = len(data.columns) + 1
+    judged = data.verdict_header is not None
+    ncol = len(data.columns) + 1 + judged
     env = "table*" if ncol > WIDE_TABLE_COLUMNS else "table"  # wide tables span both columns
     lines = [f"% grip-bench table {data.id} v{data.version}; requires \\usepackage{{booktabs}}",
              rf"\begin{{{env}}}[t]", r"\centering", r"\small",
              rf"\caption{{{tex_escape(data.title)}}}", rf"\label{{tab:{data.id}}}",
-             rf"\begin{{tabular}}{{l{'c' * (ncol - 1)}}}", r"\toprule", *_tex_header(data),
-             r"\midrule"]
+             rf"\begin{{tabular}}{{l{'c' * (ncol - 1 - judged)}{'l' * judged}}}", r"\toprule",
+             *_tex_header(data), r"\midrule"]
     for i, row in enumerate(data.rows):
         if row.group and (i == 0 or data.rows[i - 1].group != row.group):
             if i > 0:
@@ -309,6 +361,7 @@ def to_latex(data: TableData) -> str:
                 rf"\multicolumn{{{ncol}}}{{l}}{{\textit{{{tex_escape(section_title(row))}}}}} \\"
             )
         cells = [_tex_cell(c, marks.get((i, j))) for j, c in enumerate(row.cells)]
+        cells += [tex_escape(row.verdict or MISSING)] if judged else []
         lines.append(" & ".join([tex_escape(row.label)] + cells) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}"]
     foot = [f"$^{{{k}}}$ {tex_escape(t)}" for k, t in enumerate(notes, 1)]
@@ -369,6 +422,8 @@ def _html_cell(cell: Cell, mark: int | None) -> str:
         if _has_ci(cell.ci):
             body += (f' <span class="ci">[{fmt_num(cell.ci.lo, cell.decimals)}, '
                      f"{fmt_num(cell.ci.hi, cell.decimals)}]</span>")
+        if seed_range(cell) is not None:
+            body += f' <span class="ci">{_esc(seed_text(cell).strip())}</span>'
         value = format_float(cell.ci.mean) if _shown(cell.ci) else ""
     if mark:
         body += f"<sup>{mark}</sup>"
@@ -394,6 +449,8 @@ def _html_head(data: TableData) -> list[str]:
             bottom += [f'<th data-col="{j + k}">{_esc(sub_header(c, on_group))}</th>'
                        for k, c in enumerate(data.columns[j - 1:j - 1 + span])]
         j += span
+    if data.verdict_header:
+        top.append(f'<th data-col="{j}"{rs}>{_esc(data.verdict_header)}</th>')
     rows = ["<tr>" + "".join(top) + "</tr>"]
     if two_rows:
         rows.append("<tr>" + "".join(bottom) + "</tr>")
@@ -434,7 +491,7 @@ def table_html(data: TableData, links: Links | None = None) -> str:
 
     ``links``: viewer pages per method, shown after the label of the row of that method."""
     marks, notes = footnotes(data)
-    ncol = len(data.columns) + 1
+    ncol = len(data.columns) + 1 + (data.verdict_header is not None)
     out = [f'<section id="{_esc(data.id)}">', f"<h2>{_esc(data.title)}</h2>",
            f'<p class="notes"><code>{_esc(data.id)}</code> v{data.version}: '
            f"{_esc(data.description)}</p>",
@@ -448,6 +505,8 @@ def table_html(data: TableData, links: Links | None = None) -> str:
         for i, row in enumerate(rows, offset):
             cls = ' class="reference"' if row.reference else ""
             cells = "".join(_html_cell(c, marks.get((i, j))) for j, c in enumerate(row.cells))
+            if data.verdict_header:
+                cells += f'<td style="text-align:left">{_esc(row.verdict or MISSING)}</td>'
             out.append(f'<tr{cls}><th scope="row">{_row_label_html(row, links)}</th>{cells}</tr>')
         offset += len(rows)
         out.append("</tbody>")

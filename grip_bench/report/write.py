@@ -94,7 +94,9 @@ def write_figures(out: Path, results: pd.DataFrame, options: dict) -> list[Path]
 def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
                        figures: list[Path], links: dict | None = None) -> list[Path]:
     """``leaderboard.{csv,md,html}`` of the clean main split (one set per dataset); the HTML
-    links each method to its viewer pages (``links``, :func:`report.viewer.viewer_links`)."""
+    links each method to its viewer pages (``links``, :func:`report.viewer.viewer_links`).
+    Rows of further training seeds (``<method>@seed<N>``) are left out: the leaderboard is
+    the first seed's, as in a single-seed run."""
     from ..methods.api import predicted_hands, variants
     from .leaderboard import (
         leaderboard,
@@ -102,9 +104,12 @@ def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
         write_leaderboard_html,
         write_leaderboard_md,
     )
+    from .tables import is_seed_label
 
     main = results[results["split"] == options.get("split", MAIN_SPLIT)]
     main = main[~main["method"].isin(variants())]  # ablations: in their own tables
+    # further training seeds ([run] seeds): in the seeded tables, not one line per seed
+    main = main[~main["method"].map(is_seed_label).astype(bool)] if len(main) else main
     datasets = sorted(main["dataset"].unique()) or [None]
     hands = predicted_hands()
     written = []

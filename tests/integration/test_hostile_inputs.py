@@ -384,6 +384,7 @@ RUN_SETTINGS = {
     "per_frame": True, "device": "cpu", "bootstrap_seed": 0, "bootstrap_n": 50,
     "runtime_sequences": 1, "runtime_repeats": 1, "physics_frames": 4, "iv_frames": 0,
     "figure_methods": [], "validity_sequences": 0, "viewer_sequences": 0,
+    "seeds": [], "capture_noise": "none",
 }
 
 

@@ -53,6 +53,8 @@ iv_frames = 0
 figure_methods = ["mean-pose"]
 validity_sequences = 0
 viewer_sequences = {viewer}
+seeds = []
+capture_noise = "none"
 """
 MERGED = ("results.csv", "frames.csv", "figures/heatmap_data.npz",
           "figures/penetration_depths.npz")

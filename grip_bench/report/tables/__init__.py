@@ -12,6 +12,15 @@ perturbed input). Rows with ``reference = true`` (ground truth, perturbed input)
 marked best. ``source = "runtime"`` tables read ``runtime.csv`` instead; their columns name
 a ``field`` of that file.
 
+Several training seeds (``[run] seeds``): the rows of a further seed are labelled
+``<method>@seed<N>`` (:func:`seed_label`). A table any of whose row methods has such rows is
+*seeded*: each cell reports the mean over seeds (the per-sequence values averaged over the
+seeds, then the usual bootstrap interval over sequences) and the per-seed means
+(``Cell.seed_means``, rendered as their range). A seeded table with ``compare_to = "<method>"``
+judges every other row against that row's (:func:`judge`): "differs" only when the difference
+of seed means exceeds both the seed spread and its 95% paired bootstrap interval. Tables
+without seed rows compute exactly as before.
+
 Installed plug-ins add tables through the ``grip_bench.tables`` entry-point group
 (:func:`plugin_table_files`); they come after the suite's own and may not reuse an id.
 
@@ -25,12 +34,14 @@ File format (all keys listed in ``_TABLE_KEYS`` / ``_ROW_KEYS`` / ``_COLUMN_KEYS
     [defaults]  split = "test"  perturbation = "none"
     [[columns]] metric = "mpvpe"  hand = "right"  group = "MPVPE"
     [[rows]]    label = "0"  method = "grip-future0"
+    compare_to = "grip"           # optional: seeded tables judge each row against this method
 """
 
 from __future__ import annotations
 
+import re
 import tomllib
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -39,10 +50,18 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from ...core.constants import BOOTSTRAP_N, BOOTSTRAP_SEED, REPORT_DECIMALS
+from ...core.constants import BOOTSTRAP_ALPHA, BOOTSTRAP_N, BOOTSTRAP_SEED, REPORT_DECIMALS
 from ...core.errors import InputError
 from ...core.registry import Registry
-from ...results.stats import AVERAGING_NOTES, CI, bootstrap_ci, sequence_ci
+from ...results.stats import (
+    AVERAGING_NOTES,
+    CI,
+    SEQUENCE_KEYS,
+    bootstrap_ci,
+    per_sequence,
+    pooled_per_sequence,
+    sequence_ci,
+)
 
 if TYPE_CHECKING:
     from ...metrics.registry import MetricSpec
@@ -64,6 +83,7 @@ _TABLE_KEYS = {
     "row_header": str,
     "defaults": dict,
     "before": dict,
+    "compare_to": str,
     "rows": list,
     "columns": list,
 }
@@ -116,6 +136,7 @@ class TableSpec:
     defaults: dict = field(default_factory=dict)
     order: int = 1000
     path: str = ""
+    compare_to: str | None = None  # seeded tables: judge each row against this method's row
 
     def describe(self) -> str:
         """One line for ``grip-bench ls tables``."""
@@ -224,8 +245,13 @@ def parse_table(data: dict, where: str | Path) -> TableSpec:
         row_header=data.get("row_header", "Method"), defaults=defaults,
         rows=tuple(_row(r, f"{where}: rows[{i}]") for i, r in enumerate(data["rows"])),
         columns=tuple(columns), order=data.get("order", 1000), path=where,
+        compare_to=data.get("compare_to"),
     )
     _check_cells(spec, where)
+    if spec.compare_to is not None and spec.compare_to not in {
+            spec.cell_filters(r, spec.columns[0]).get("method") for r in spec.rows}:
+        raise InputError(f"compare_to {spec.compare_to!r} is not the method of any row",
+                         where=f"{where}: compare_to")
     return spec
 
 
@@ -320,6 +346,9 @@ class Cell:
     higher_is_better: bool | None = None
     decimals: int = 2
     filters: dict = field(default_factory=dict)
+    # seeded tables only: the mean of each seed (first seed first); empty otherwise
+    seed_means: tuple[float, ...] = ()
+    judged: Judgement | None = None  # seeded tables with compare_to: this cell vs the reference
 
 
 @dataclass(frozen=True)
@@ -346,6 +375,7 @@ class Row:
     group_unit: str | None = None
     group_higher_is_better: bool | None = None
     reference: bool = False
+    verdict: str | None = None  # seeded tables with compare_to: the row's verdict text
 
 
 @dataclass(frozen=True)
@@ -360,6 +390,123 @@ class TableData:
     columns: tuple[Column, ...]
     rows: tuple[Row, ...]
     notes: tuple[str, ...] = ()
+    n_seeds: int = 1  # > 1: a seeded table (cells carry seed_means)
+    verdict_header: str | None = None  # the verdict column's header (seeded, compare_to)
+
+
+# --- seeds -----------------------------------------------------------------------------------
+SEED_TAG = "@seed"  # "<method>@seed<N>": the result rows of a further training seed
+_SEED_LABEL = re.compile(r"^(?P<method>.+)@seed(?P<seed>\d+)$")
+VERDICT_DIFFERS, VERDICT_NOISE, VERDICT_REFERENCE = "differs", "within noise", "reference"
+
+
+def seed_label(method: str, seed: int) -> str:
+    """The ``method`` column of a further seed's rows: ``grip`` -> ``grip@seed1``."""
+    return f"{method}{SEED_TAG}{int(seed)}"
+
+
+def split_seed_label(label: str) -> tuple[str, int | None]:
+    """``"grip@seed1"`` -> ``("grip", 1)``; a plain method name -> ``(name, None)``."""
+    m = _SEED_LABEL.match(label)
+    return (m["method"], int(m["seed"])) if m else (label, None)
+
+
+def is_seed_label(label: str) -> bool:
+    """Whether ``label`` names a further seed's rows (kept out of leaderboards, viewers)."""
+    return split_seed_label(label)[1] is not None
+
+
+def seed_labels(methods: Iterable[str]) -> dict[str, list[str]]:
+    """``{method: [its further seeds' labels, by seed]}`` among the labels ``methods``."""
+    found: dict[str, list[tuple[int, str]]] = {}
+    for label in set(methods):
+        base, seed = split_seed_label(label)
+        if seed is not None:
+            found.setdefault(base, []).append((seed, label))
+    return {m: [lab for _, lab in sorted(v)] for m, v in found.items()}
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """A row's cell against the reference row's (seeded tables, ``compare_to``).
+
+    ``diff``: seed mean of the row minus the reference's; ``ci``: its 95% paired bootstrap
+    interval over the test sequences both have (the seed-averaged per-sequence values);
+    ``spread``: the larger seed range (max - min of the per-seed means) of the two rows;
+    ``verdict``: :data:`VERDICT_DIFFERS`, :data:`VERDICT_NOISE` or ``None`` (not judged:
+    fewer than two seeds on a row, or no finite value).
+    """
+
+    diff: float
+    ci: CI | None
+    spread: float
+    verdict: str | None
+
+
+def judge(row_seed_means: Sequence[float], ref_seed_means: Sequence[float],
+          diff_ci: CI | None) -> Judgement:
+    """Whether a difference is real: the difference of the two rows' seed means must exceed
+    both the seed spread (the larger max - min over seeds of the two rows) and the 95%
+    interval of the difference (the paired bootstrap interval ``diff_ci`` excludes 0).
+
+    ``row_seed_means`` / ``ref_seed_means``: per-seed means (n_seeds,) of the row and of the
+    reference. Fewer than two finite seeds on either side, or no interval: not judged
+    (``verdict`` None, NaN numbers where they cannot be computed).
+    """
+    a = np.asarray(row_seed_means, dtype=np.float64)
+    b = np.asarray(ref_seed_means, dtype=np.float64)
+    a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+    if len(a) < 2 or len(b) < 2:
+        diff = float(a.mean() - b.mean()) if len(a) and len(b) else np.nan
+        return Judgement(diff, diff_ci, np.nan, None)
+    diff = float(a.mean() - b.mean())
+    spread = float(max(np.ptp(a), np.ptp(b)))
+    if diff_ci is None or not np.isfinite(diff_ci.lo) or not np.isfinite(diff_ci.hi):
+        return Judgement(diff, diff_ci, spread, None)
+    beyond_interval = diff_ci.lo > 0.0 or diff_ci.hi < 0.0
+    beyond_spread = abs(diff) > spread
+    verdict = VERDICT_DIFFERS if beyond_interval and beyond_spread else VERDICT_NOISE
+    return Judgement(diff, diff_ci, spread, verdict)
+
+
+def paired_difference_ci(
+    a: pd.DataFrame, b: pd.DataFrame, n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
+    alpha: float = BOOTSTRAP_ALPHA, averaging: str = "sequence",
+) -> CI:
+    """Mean of ``a`` minus mean of ``b`` over the sequences both have a finite value for,
+    with its object-stratified paired bootstrap interval: each resample draws sequences once
+    and takes both means on them, so what the two rows share (the sequences' difficulty)
+    cancels. ``a`` / ``b``: results rows (several seeds' rows average per sequence, as in a
+    seeded cell); ``averaging="pooled"`` weights each sequence by its frames, per row.
+    ``n_nan`` counts the sequences of either side left out.
+    """
+    per = pooled_per_sequence if averaging == "pooled" else per_sequence
+    pa, pb = per(a), per(b)
+    if averaging != "pooled":
+        pa, pb = pa.assign(weight=1.0), pb.assign(weight=1.0)
+    keys = list(SEQUENCE_KEYS)
+    m = pa.merge(pb, on=keys, how="outer", suffixes=("_a", "_b"), sort=True)
+    va, vb = m["value_a"].to_numpy(np.float64), m["value_b"].to_numpy(np.float64)
+    wa, wb = m["weight_a"].to_numpy(np.float64), m["weight_b"].to_numpy(np.float64)
+    ok = np.isfinite(va) & np.isfinite(vb) & (wa > 0) & (wb > 0)
+    n, n_nan = int(ok.sum()), int((~ok).sum())
+    if n == 0:
+        return CI(np.nan, np.nan, np.nan, 0, n_nan)
+    va, vb, wa, wb = va[ok], vb[ok], wa[ok], wb[ok]
+    strata = m["object"].to_numpy()[ok]
+    mean = float((va * wa).sum() / wa.sum() - (vb * wb).sum() / wb.sum())
+    _, codes = np.unique(strata, return_inverse=True)
+    order = np.lexsort((vb, va, codes))  # independent of the input row order
+    va, vb, wa, wb, codes = va[order], vb[order], wa[order], wb[order], codes[order]
+    sizes = np.bincount(codes)
+    start = np.concatenate([[0], np.cumsum(sizes)[:-1]])[codes]
+    size = sizes[codes]
+    rng = np.random.default_rng(seed)
+    idx = start + np.minimum((rng.random((n_boot, n)) * size).astype(np.int64), size - 1)
+    boots = ((va[idx] * wa[idx]).sum(axis=1) / wa[idx].sum(axis=1)
+             - (vb[idx] * wb[idx]).sum(axis=1) / wb[idx].sum(axis=1))
+    lo, hi = np.quantile(boots, [alpha / 2, 1 - alpha / 2])
+    return CI(mean, float(lo), float(hi), n, n_nan)
 
 
 def _metric_info(
@@ -389,6 +536,13 @@ class _Index:
         self.df = df
         self.groups = {k: g for k, g in df.groupby(["method", "metric", "perturbation"],
                                                    sort=False)}
+        self.seeds = seed_labels(df["method"].unique()) if len(df) else {}
+
+    def seeded(self, flt: dict) -> list[pd.DataFrame]:
+        """The rows of ``flt`` for its method's first seed, then for each further seed
+        (``<method>@seed<N>``), empty selections left out."""
+        labels = [flt["method"], *self.seeds.get(flt["method"], [])]
+        return [r for r in (self.select({**flt, "method": m}) for m in labels) if len(r)]
 
     def select(self, flt: dict) -> pd.DataFrame:
         parts = [g for (m, me, p), g in self.groups.items()
@@ -426,6 +580,98 @@ def _results_cell(
                 before_method=bflt["method"] if col.before is not None else None,
                 metric=flt["metric"],
                 unit=unit, higher_is_better=hib, decimals=_decimals(col), filters=flt)
+
+
+def _seeded_ci(parts: list[pd.DataFrame], n_boot: int, seed: int,
+               averaging: str) -> tuple[CI | None, tuple[float, ...]]:
+    """(CI of the seed mean, per-seed means) of a cell's per-seed rows: the rows of every
+    seed average per sequence (each seed weighs the same where every seed has the
+    sequence), then the mean over sequences with its bootstrap interval."""
+    if not parts:
+        return None, ()
+    ci = sequence_ci(pd.concat(parts) if len(parts) > 1 else parts[0], n_boot=n_boot,
+                     seed=seed, averaging=averaging)
+    means = tuple(sequence_ci(r, n_boot=1, seed=seed, averaging=averaging).mean
+                  for r in parts)
+    return ci, means
+
+
+def _seeded_cell(
+    index: _Index,
+    flt: dict,
+    col: ColumnSpec,
+    registry: Registry[MetricSpec] | None,
+    n_boot: int,
+    seed: int,
+    averaging: str = "sequence",
+) -> Cell:
+    """A cell of a seeded table: the mean over seeds, its interval, the per-seed means."""
+    parts = index.seeded(flt)
+    unit, hib, _ = _metric_info(flt["metric"], registry,
+                                pd.concat(parts)["unit"] if parts else [])
+    ci, means = _seeded_ci(parts, n_boot, seed, averaging)
+    before, bflt = None, {**flt, **(col.before or {})}
+    if col.before is not None:
+        before, _ = _seeded_ci(index.seeded(bflt), n_boot, seed, averaging)
+    return Cell(ci=ci, before=before, paired=col.before is not None,
+                before_method=bflt["method"] if col.before is not None else None,
+                metric=flt["metric"], unit=unit, higher_is_better=hib, decimals=_decimals(col),
+                filters=flt, seed_means=means)
+
+
+def _judged_rows(rows: list[Row], cell_rows: list[list[pd.DataFrame | None]], ref: int,
+                 n_boot: int, seed: int, averaging: str,
+                 headers: Sequence[Column]) -> list[Row]:
+    """Rows with each cell judged against row ``ref``'s (:func:`judge`) and a verdict text:
+    "reference", "within noise", "differs: <columns> (worse / better)" or "–" (none judged).
+
+    ``cell_rows[i][j]``: the results rows (all seeds) of cell (i, j), None when empty.
+    """
+    out = []
+    for i, row in enumerate(rows):
+        if i == ref:
+            out.append(replace(row, verdict=VERDICT_REFERENCE))
+            continue
+        cells, differs, judged = [], [], 0
+        for j, cell in enumerate(row.cells):
+            a, b = cell_rows[i][j], cell_rows[ref][j]
+            if a is None or b is None:
+                cells.append(cell)
+                continue
+            diff_ci = paired_difference_ci(a, b, n_boot=n_boot, seed=seed, averaging=averaging)
+            jd = judge(cell.seed_means, rows[ref].cells[j].seed_means, diff_ci)
+            cells.append(replace(cell, judged=jd))
+            judged += jd.verdict is not None
+            if jd.verdict == VERDICT_DIFFERS:
+                differs.append(f"{headers[j].group} {headers[j].label}".strip()
+                               + _direction_word(jd.diff, cell.higher_is_better))
+        text = (f"{VERDICT_DIFFERS}: {', '.join(differs)}" if differs
+                else VERDICT_NOISE if judged else "–")
+        out.append(replace(row, cells=tuple(cells), verdict=text))
+    return out
+
+
+def _direction_word(diff: float, higher_is_better: bool | None) -> str:
+    if higher_is_better is None:
+        return " (higher)" if diff > 0 else " (lower)"
+    return " (better)" if (diff > 0) == higher_is_better else " (worse)"
+
+
+def seeds_note(n_seeds: int) -> str:
+    """The note of a seeded table: what its numbers are."""
+    return (f"Seeds: each trained method's cell is the mean over its {n_seeds} training "
+            "seeds ([run] seeds; further seeds' rows are <method>@seed<N> in results.csv); "
+            "[lo, hi] is the 95% bootstrap interval over test sequences of the per-sequence "
+            "values averaged over seeds; {min–max} is the range of the per-seed means.")
+
+
+def verdict_note(label: str) -> str:
+    """The note of a judged table: the rule of its verdict column."""
+    return (f"Verdict vs {label}: \"differs\" only when the difference of seed means exceeds "
+            "both the seed spread (the larger max - min over seeds of the two rows) and its "
+            "95% paired bootstrap interval over test sequences (the interval excludes 0), "
+            "per column; otherwise \"within noise\"; \"–\" where a row has fewer than two "
+            "seeds.")
 
 
 def _decimals(col: ColumnSpec) -> int:
@@ -503,16 +749,72 @@ def compute_table(
     evaluated frames, as GRIP's code); results tables state it in their last note."""
     registry = metrics_registry if metrics_registry is not None else default_metric_registry()
     columns = tuple(_column_header(spec, c, registry) for c in spec.columns)
+    n_seeds, verdict_header = 1, None
     if spec.source == "runtime":
         rows = _runtime_rows(spec, runtime, n_boot=n_boot, seed=seed)
     else:
-        rows = _results_rows(spec, results, dataset, registry, n_boot, seed, averaging)
+        index = _Index(_empty_results() if results is None else results)
+        n_seeds = _table_seeds(spec, index)
+        if n_seeds > 1:
+            rows, verdict_header = _seeded_rows(spec, index, dataset, registry, n_boot, seed,
+                                                averaging, columns)
+        else:
+            rows = _results_rows(spec, results, dataset, registry, n_boot, seed, averaging)
     notes = spec.notes
     if spec.source != "runtime":
         notes = (*notes, AVERAGING_NOTES[averaging])
+    if n_seeds > 1:
+        notes = (*notes, seeds_note(n_seeds))
+        if verdict_header is not None:
+            notes = (*notes, verdict_note(verdict_header.removeprefix("Verdict vs ")))
     return TableData(id=spec.id, title=spec.title, version=spec.version,
                      description=spec.description, row_header=spec.row_header,
-                     columns=columns, rows=tuple(mark_best(rows)), notes=tuple(notes))
+                     columns=columns, rows=tuple(mark_best(rows)), notes=tuple(notes),
+                     n_seeds=n_seeds, verdict_header=verdict_header)
+
+
+def _empty_results() -> pd.DataFrame:
+    return pd.DataFrame({c: [] for c in ("method", "metric", "perturbation", "dataset",
+                                         "split", "hand", "unit", "value")})
+
+
+def _table_seeds(spec: TableSpec, index: _Index) -> int:
+    """The most seeds any row method of ``spec`` has in the results (1: not seeded)."""
+    methods = {spec.cell_filters(r, c).get("method") for r in spec.rows for c in spec.columns}
+    return 1 + max((len(index.seeds.get(m, [])) for m in methods if m), default=0)
+
+
+def _seeded_rows(
+    spec: TableSpec,
+    index: _Index,
+    dataset: str | None,
+    registry: Registry[MetricSpec] | None,
+    n_boot: int,
+    seed: int,
+    averaging: str,
+    columns: Sequence[Column],
+) -> tuple[list[Row], str | None]:
+    """Rows of a seeded table and, with ``compare_to``, their verdicts and its header."""
+    rows, cell_rows = [], []
+    for r in spec.rows:
+        cells, raw = [], []
+        for c in spec.columns:
+            flt = spec.cell_filters(r, c)
+            if dataset is not None:
+                flt["dataset"] = dataset
+            cells.append(_seeded_cell(index, flt, c, registry, n_boot, seed, averaging))
+            parts = index.seeded(flt)
+            raw.append(pd.concat(parts) if parts else None)
+        unit, hib = _row_group_info(spec, r, registry)
+        rows.append(Row(label=r.label, cells=tuple(cells), group=r.group, group_unit=unit,
+                        group_higher_is_better=hib, reference=r.reference))
+        cell_rows.append(raw)
+    if spec.compare_to is None:
+        return rows, None
+    ref = next(i for i, r in enumerate(spec.rows)
+               if spec.cell_filters(r, spec.columns[0]).get("method") == spec.compare_to)
+    rows = _judged_rows(rows, cell_rows, ref, n_boot, seed, averaging, columns)
+    return rows, f"Verdict vs {spec.rows[ref].label}"
 
 
 def _results_rows(
