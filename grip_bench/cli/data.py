@@ -55,7 +55,8 @@ def add_info(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("info", help="summarise a sequence file or a dataset folder",
                        description="A sequence .npz: frames, fps, subject, object, intent, "
                        "duration, contact frames (the file is fully read and validated). "
-                       "A dataset folder: counts per split, object, intent and subject.")
+                       "A dataset folder: counts per split, object, intent and subject, and "
+                       "(SynthGRAB, from manifest.json) grasp types per object family.")
     p.add_argument("path", type=Path, metavar="PATH", help="a .npz sequence or a data folder")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.add_argument("--model-path", help="MANO/SMPL-X models, to expand PCA hand poses (real GRAB)")
@@ -107,7 +108,34 @@ def dataset_info(data_dir: Path) -> dict:
         split_counts = Counter(_safe_split(h["obj_name"], splits, split_of) for h in headers)
         info["splits"] = {s: split_counts.get(s, 0) for s in (*splits, "unassigned")
                           if s != "unassigned" or split_counts.get(s)}
+    grasps = grasp_type_counts(data_dir, [p.relative_to(data_dir).as_posix() for p in files])
+    if grasps:
+        info["grasp_types"] = grasps
     return info
+
+
+def grasp_type_counts(data_dir: Path, files: list[str]) -> dict[str, dict[str, int]]:
+    """family -> grasp type -> hands holding with it, over the sequence ``files`` (paths
+    relative to ``data_dir``) that a SynthGRAB ``manifest.json`` describes (its
+    ``sequences`` member); empty without one (real GRAB, SynthGRAB v1)."""
+    path = data_dir / "manifest.json"
+    if not path.is_file():
+        return {}
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"not a JSON manifest ({err})", path) from None
+    seqs = manifest.get("sequences") if isinstance(manifest, dict) else None
+    if not isinstance(seqs, dict):
+        return {}
+    out: dict[str, Counter] = {}
+    for f in files:
+        entry = seqs.get(f)
+        if not isinstance(entry, dict) or not isinstance(entry.get("grasps"), dict):
+            continue
+        fam = out.setdefault(str(entry.get("family", "?")), Counter())
+        fam.update(str(k) for k in entry["grasps"].values())
+    return {f: dict(sorted(c.items())) for f, c in sorted(out.items())}
 
 
 def _safe_split(
@@ -122,6 +150,12 @@ def _safe_split(
 def _print_text(info: dict) -> None:
     width = max(len(k) for k in info)
     for key, value in info.items():
+        if isinstance(value, dict) and value and all(isinstance(v, dict) for v in value.values()):
+            print(key)  # a table: one row per entry (grasp types per family)
+            inner = max(len(k) for k in value)
+            for k, v in value.items():
+                print(f"  {k:<{inner}}  " + ", ".join(f"{a} {b}" for a, b in v.items()))
+            continue
         if isinstance(value, dict):
             value = ", ".join(f"{k} {v}" for k, v in value.items())
         print(f"{key:<{width}}  {value}")

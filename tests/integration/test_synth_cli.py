@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from grip_bench.cli.data import dataset_info
 from grip_bench.cli.main import main
 from grip_bench.data.grab_io import list_sequences, read_grab
 from grip_bench.data.splits import read_splits
@@ -45,6 +46,26 @@ def test_synth_tiny_end_to_end(tmp_path, capsys):
         pa, pb = a["body"].item()["params"], b["body"].item()["params"]
         assert all(pa[k].tobytes() == pb[k].tobytes() for k in pa)
         assert a["contact"].item()["object"].tobytes() == b["contact"].item()["object"].tobytes()
+    # same seed -> same bytes, whatever the worker count (the manifest's timing and worker
+    # count aside)
+    written = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
+    assert written == sorted(p.relative_to(out2) for p in out2.rglob("*") if p.is_file())
+    for rel in written:
+        if rel.name != "manifest.json":
+            assert (out / rel).read_bytes() == (out2 / rel).read_bytes(), rel
+    m2 = json.loads((out2 / "manifest.json").read_text())
+    drop = ("wall_time_s", "workers")
+    assert {k: v for k, v in manifest.items() if k not in drop} == \
+        {k: v for k, v in m2.items() if k not in drop}
+    # every grasping hand's type is in the manifest, and `data info` counts them per family
+    assert manifest["version"] == "2.0" and set(manifest["sequences"]) == {
+        f.relative_to(out).as_posix() for f in files}
+    info = dataset_info(out)
+    hands = sum(len(e["grasps"]) for e in manifest["sequences"].values())
+    assert sum(sum(c.values()) for c in info["grasp_types"].values()) == hands
+    assert info["grasp_types"] == manifest["counts"]["grasp_types"]
+    for shape in manifest["objects"].values():
+        assert len(shape["stretch"]) == 3 and any(abs(x - 1) > 1e-3 for x in shape["stretch"])
 
 
 @pytest.mark.slow

@@ -117,7 +117,7 @@ def release_and_retreat(
         Rw, pw = wrist_of(obj_R, obj_p, g)
         sc.move(s, a, b, pw + BACKOFF_DIST * (obj_R @ g.approach) + np.array([0.0, 0.03, 0.0]), Rw,
                 ease="leave")
-        sc.shape(s, (a + b) // 2, b, sc.relaxed[s])  # relax once clear of the object and table
+        sc.shape(s, (a + b) // 2, b, sc.relaxed_end[s])  # relax once clear of object and table
     a, b = sc.phase("retreat", 1.0)
     for s in sides:
         via = _over_table(cast, sc.wrist[s].last[0], sc.rest[s][0]) if on_table else None
@@ -369,7 +369,7 @@ def _offhand(sc: Script, cast: Cast, rng: np.random.Generator, amp: float,
     sc.carry(a, b, *sc.obj.last)
     a, b = sc.phase("place", 1.1)
     sc.move(N, a, b, *sc.rest[N], _over_table(cast, back, sc.rest[N][0]), ease="leave")
-    sc.shape(N, a, (a + b) // 2, sc.relaxed[N])  # fingers relax once clear of the object
+    sc.shape(N, a, (a + b) // 2, sc.relaxed_end[N])  # fingers relax once clear of the object
     sc.carry(a, b, p0 + np.array([0.0, 0.03, 0.0]), ho.mid_R)
     _carry(sc, "settle", 0.4, p0, ho.mid_R)
     detach(sc, cast, D)
@@ -411,4 +411,8 @@ def choreograph(cast: Cast, amp: float, relaxed: dict) -> Script:
             detach(sc, cast, s)
         release_and_retreat(sc, cast, cast.sides)
     sc.phase("rest_end", float(rng.uniform(0.4, 0.7)))
+    for s in SIDES:  # a hand that takes no part drifts between its two idle poses
+        if s not in cast.sides and not np.array_equal(sc.relaxed[s], sc.relaxed_end[s]):
+            a, b = sorted(int(x) for x in rng.integers(1, max(sc.t - 1, 2), size=2))
+            sc.shape(s, a, max(b, a + 1), sc.relaxed_end[s])
     return sc

@@ -52,6 +52,53 @@ from .world import Subject
 BODY_TABLE_GAP = 0.2
 AMPLITUDES = (1.0, 0.75, 0.5)  # intent motion scales tried until every target is reachable
 TABLE_TOLERANCE = 0.001  # m; a hand or the object may touch this deep into the table (rounding)
+# Idle (relaxed) hands, SynthGRAB v2: the model's relaxed pose with a drawn overall curl
+# (factor), an ulnar cascade (extra flexion per finger towards the little finger, deg), a
+# finger spread (MCP abduction, deg) and a thumb posture (CMC abduction and flexion, deg),
+# so that idle hands vary between sequences and segments instead of sitting at one pose.
+IDLE_CURL = (0.3, 1.9)
+IDLE_CASCADE_DEG = (0.0, 8.0)
+IDLE_SPREAD_DEG = (-4.0, 8.0)
+IDLE_THUMB_DEG = ((-10.0, 15.0), (-10.0, 20.0))
+# Stream tags of the draws that must not depend on the intent or on the other draws.
+KIND_STREAM, IDLE_STREAM = 1, 2
+
+
+# --- seeded sub-streams and idle hands ---------------------------------------------------------
+def sub_stream(seed: int | np.random.SeedSequence, tag: int) -> np.random.Generator:
+    """A generator of its own for ``(seed, tag)``: draws from it depend on the seed alone,
+    neither on the intent nor on how much the episode's main stream was used."""
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    return np.random.default_rng(
+        np.random.SeedSequence(ss.entropy, spawn_key=(*ss.spawn_key, 1000 + tag))
+    )
+
+
+def idle_pose(hand, rng: np.random.Generator) -> np.ndarray:
+    """A relaxed finger pose (15, 3) axis-angles for ``hand`` (a ``ProceduralHand``):
+    the model's relaxed pose varied as ``IDLE_*`` say, clamped into the joint limits."""
+    import torch
+
+    with torch.no_grad():
+        base = hand.to_local(hand.named_pose("relaxed").double()).numpy()
+    local = base.copy()
+    local[:12, 0] *= rng.uniform(*IDLE_CURL)
+    for k, chain in enumerate(((0, 1, 2), (3, 4, 5), (9, 10, 11), (6, 7, 8))):  # index -> pinky
+        local[list(chain), 0] += np.radians(k * rng.uniform(*IDLE_CASCADE_DEG))
+    spread = np.radians(rng.uniform(*IDLE_SPREAD_DEG))
+    local[[0, 3, 9, 6], 1] += spread * np.array([1.0, 0.2, -0.6, -1.0])
+    local[12, 1] += np.radians(rng.uniform(*IDLE_THUMB_DEG[0]))
+    local[12, 0] += np.radians(rng.uniform(*IDLE_THUMB_DEG[1]))
+    with torch.no_grad():
+        pose = hand.from_local(torch.as_tensor(local))
+        return hand.clamp(pose).double().numpy()
+
+
+def idle_poses(hands: dict, seed: int | np.random.SeedSequence) -> dict:
+    """Per side (2, 15, 3): the idle pose before the grasp and the one after the release
+    (an idle hand drifts from the first to the second), drawn from their own stream."""
+    rng = sub_stream(seed, IDLE_STREAM)
+    return {s: np.stack([idle_pose(hands[s], rng), idle_pose(hands[s], rng)]) for s in SIDES}
 
 
 # --- one episode -------------------------------------------------------------------------------
@@ -130,20 +177,31 @@ def make_episode(
     seed: int | np.random.SeedSequence,
     tools: ObjectTools | None = None,
     index: int = 1,
+    *,
+    grasp_kind: str | None = None,
+    varied_idle: bool = True,
 ) -> Episode:
     """One SynthGRAB sequence.
 
-    seed: int or ``np.random.SeedSequence``; every random choice comes from it.
+    seed: int or ``np.random.SeedSequence``; every random choice comes from it (the grasp
+    type and the idle hands from sub-streams of their own, :func:`sub_stream`).
     tools: the object's cached distance field and grasp synthesizer (built if None).
     index: the ``n`` of the sequence name ``<sbj>/<object>_<intent>_<n>``.
+    grasp_kind: try this grasp type first instead of drawing one (one-handed intents).
+    varied_idle: idle hands in drawn relaxed poses (:func:`idle_poses`); False: the hand
+    model's relaxed pose (SynthGRAB v1).
     Raises :class:`EpisodeFailed` when no grasp or no reachable motion exists.
     """
     tools = tools or ObjectTools(inst)
     rng = np.random.default_rng(seed)
     scene = make_scene(subject, inst, rng, intent)
-    cast = make_cast(subject, inst, scene, intent, rng, tools)
+    cast = make_cast(subject, inst, scene, intent, rng, tools,
+                     kind_rng=sub_stream(seed, KIND_STREAM), grasp_kind=grasp_kind)
     hands = hand_models(subject.hand_scale)
-    relaxed = {s: hands[s].named_pose("relaxed").double().numpy() for s in SIDES}
+    if varied_idle:
+        relaxed = idle_poses(hands, seed)
+    else:
+        relaxed = {s: hands[s].named_pose("relaxed").double().numpy() for s in SIDES}
     mo, sc, cast, verts, gaps = plan_motion(cast, relaxed)
     contacts, v_obj, reps, close = {}, {}, {}, {}
     for s in SIDES:

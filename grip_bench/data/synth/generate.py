@@ -6,6 +6,11 @@ deterministic plan of (subject, object, intent, seed) per sequence, episodes ove
 process pool (each worker caches one distance field and grasp synthesizer per object),
 then GRAB names, ``manifest.json`` and a quality report next to GRAB's statistics.
 
+The manifest also records what the GRAB-layout files cannot hold (docs/contract.md, "Data
+on disk"): per sequence file the grasp type of each hand that holds the object
+(``sequences``), per object its shape variation (``objects``), and the grasp-type counts per
+family (``counts.grasp_types``; ``grip-bench data info`` prints them).
+
 Every random choice comes from ``np.random.SeedSequence`` entropy derived from
 ``(seed, sequence index)``, so the arrays do not depend on the worker count.
 """
@@ -179,7 +184,9 @@ def run_group(
 
             write_grab(ep.sequence, part)
             res.update(ok=True, part=str(part), sbj=subject.sid, obj=inst.name, verb=ep.cast.verb,
-                       intent=intent, frames=ep.sequence.n_frames, stats=episode_stats(ep))
+                       intent=intent, frames=ep.sequence.n_frames, stats=episode_stats(ep),
+                       family=inst.family,
+                       grasps={s: g.kind for s, g in sorted(ep.cast.grasps.items())})
             break
         results.append(res)
     return results
@@ -303,6 +310,9 @@ def generate(out_dir: str | os.PathLike, profile: str = "smoke", seed: int = 0,
         "generator": GENERATOR_NAME, "version": GENERATOR_VERSION, "seed": int(seed),
         "profile": prof.name, "workers": workers, "splits": splits,
         "counts": _counts(results, splits),
+        "sequences": {r["file"]: {"family": r["family"], "intent": r["intent"],
+                                  "grasps": r["grasps"]} for r in results if r["ok"]},
+        "objects": {o.name: {"family": o.family, **o.shape} for o in objects},
         "subjects": [s.__dict__ for s in subjects], "quality": report,
         "data_hash": dataset_hash(out), "wall_time_s": round(time.perf_counter() - start, 1),
     }
@@ -322,7 +332,18 @@ def _counts(results: list[dict], splits: dict[str, list[str]]) -> dict:
         "intents": dict(sorted(Counter(r["verb"] for r in ok).items())),
         "splits": dict(Counter(split_of[r["obj"]] for r in ok)),
         "objects": len({r["obj"] for r in ok}),
+        "grasp_types": grasp_type_counts(r for r in ok),
     }
+
+
+def grasp_type_counts(results) -> dict:
+    """family -> grasp type -> number of hands holding with it (each hand of a sequence
+    counts once), families and types sorted."""
+    out = defaultdict(Counter)
+    for r in results:
+        for kind in r["grasps"].values():
+            out[r["family"]][kind] += 1
+    return {f: dict(sorted(c.items())) for f, c in sorted(out.items())}
 
 
 # --- quality report

@@ -1,11 +1,19 @@
 """Grasp synthesis for SynthGRAB: place the palm on the object, then close the fingers.
 
 Per candidate hand orientation (batched over candidates):
-1. *Pre-shape* the hand for the grasp type (power, handle, precision/tripod, bimanual).
-2. *Place*: start outside the object and sphere-trace the pre-shaped hand along its
-   palm normal until its nearest vertex is ``GAP`` from the surface (distance fields
-   are 1-Lipschitz, so stepping by the current clearance never jumps inside).
-3. *Close*: for each finger, flex its joints proximal to distal; each joint flexes
+1. *Pre-shape* the hand for the grasp type (``GRASP_TYPES``): power (all fingers
+   around the object, the thumb opposing), handle (a power grasp around a handle),
+   precision (a pinch between the thumb and index pads, the other fingers tucked),
+   tripod (thumb, index and middle pads, ring and little finger tucked), lateral (a key
+   pinch: the fingers curled, the object pressed by the thumb pad against the side of the
+   index), bimanual (palm and fingers of each hand on a large object).
+2. *Place*: pinches put the object centre where the closed finger pads meet; the others
+   start outside the object and sphere-trace the pre-shaped hand along its palm normal
+   (lateral: its thumb side, the thumb left out) until its nearest vertex is ``GAP`` from
+   the surface (distance fields are 1-Lipschitz, so stepping by the current clearance
+   never jumps inside).
+3. *Close*: for each finger the grasp type closes (a pinch leaves the tucked fingers
+   alone), flex its joints proximal to distal; each joint flexes
    until the part of the finger it moves touches the surface (``GAP``) or reaches its
    limit (GraspIt's auto-grasp scheme), found by a coarse sweep and a bisection.
 4. *Score*: thumb plus at least one finger in contact (palm and fingers for bimanual
@@ -70,8 +78,32 @@ _PINCH_CLOSED = {"mcp": (35, 0, 0), "pip": (50, 0, 0), "dip": (25, 0, 0),
 _PINCH = {"mcp": (12, 0, 0), "pip": (15, 0, 0), "dip": (5, 0, 0),
           "thumb_cmc": (-15, 0, 20), "thumb_mcp": (0, 0, 0), "thumb_ip": (0, 0, 0)}
 _TUCKED = {"mcp": (55, 0, 0), "pip": (70, 0, 0), "dip": (35, 0, 0)}
-# Closing direction in local coordinates: fingers flex; the thumb's CMC also opposes.
+# A pinch's middle finger: half tucked, clear of the index pad and of the object.
+_HALF_TUCKED = {"mcp": (30, 0, 0), "pip": (45, 0, 0), "dip": (20, 0, 0)}
+# Key (lateral) pinch: the fingers curled, the thumb out to the side, ready to press the
+# object against the side of the index's middle phalanx.
+_CURLED = {"mcp": (45, 0, 0), "pip": (70, 0, 0), "dip": (30, 0, 0),
+           "thumb_cmc": (-15, 32, 0), "thumb_mcp": (0, 0, 0), "thumb_ip": (0, 0, 0)}
+# Closing direction in local coordinates: fingers flex; the thumb's CMC also opposes
+# (power), or comes down onto the side of the index (lateral: adduction with some flexion).
 _THUMB_CMC_CLOSE = np.array([1.0, 0.35, 0.0]) / np.linalg.norm([1.0, 0.35, 0.0])
+_THUMB_CMC_LATERAL = np.array([0.5, -1.0, 0.0]) / np.linalg.norm([0.5, -1.0, 0.0])
+# Grasp types of one hand, and the two-handed hold of a large object. The generator draws a
+# type per grasp among those the object's size admits (GraspSynthesizer.grasp_types).
+GRASP_TYPES = ("power", "handle", "precision", "tripod", "lateral", "bimanual")
+PINCH_KINDS = ("precision", "tripod")  # the object sits where the finger pads meet
+# Largest thinnest extent (m) an object may have for each pinch type: the pre-shapes open
+# the thumb ~7.6 cm from the index pad (9 cm from between index and middle) at hand scale 1.
+PINCH_WIDTH = {"precision": 0.055, "tripod": 0.07, "lateral": 0.03}
+POWER_MIN_WIDTH = 0.048  # m; smaller objects slip out of a closed fist (measured: no grasp)
+LATERAL_MIN_HEIGHT = 0.06  # m; vertical extent a lateral pinch needs above the table
+# Fingers a grasp type does not close (kept in their pre-shape).
+# (lateral: the index stays where placing left it, its side just off the object)
+_IDLE_FINGERS = {"precision": ("middle", "ring", "pinky"), "tripod": ("ring", "pinky"),
+                 "lateral": ("index",)}
+# Hand-frame quarter turn about the finger axis mapping the thumb side (+z) onto the palm
+# normal (-y): a lateral grasp faces the object with the side of its index.
+_LATERAL_TURN = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
 @dataclass
@@ -105,22 +137,29 @@ def _kind_of(j: int) -> str:
 def preshape_local(kind: str, table: dict | None = None, flat: bool = False) -> np.ndarray:
     """Local pre-shape (15, 3) radians for a grasp kind (or an explicit per-kind table).
 
-    flat: a pinch of a flat object lying on the table keeps ring and pinky out straight
-    along the index (tucked under the palm they would reach the table).
+    flat: a pinch of a flat object lying on the table keeps the fingers it does not use
+    out straight along the index (tucked under the palm they would reach the table).
     """
-    table = table or (_PINCH if kind in ("precision", "tripod") else _OPEN)
+    default = _PINCH if kind in PINCH_KINDS else _CURLED if kind == "lateral" else _OPEN
+    table = table or default
     local = np.array([table[_kind_of(j)] for j in range(15)], dtype=float)
-    if kind == "precision" and not flat:  # pinch: ring and pinky tucked out of the way
+    if kind in PINCH_KINDS and not flat:  # the fingers a pinch does not use: out of the way
         for j in CHAINS["ring"] + CHAINS["pinky"]:
             local[j] = _TUCKED[_kind_of(j)]
+        if kind == "precision":
+            for j in CHAINS["middle"]:
+                local[j] = _HALF_TUCKED[_kind_of(j)]
     return np.radians(local)
 
 
 def _close_dirs(kind: str) -> np.ndarray:
-    """Local closing direction per joint (15, 3): flexion; a power grasp's thumb also opposes."""
+    """Local closing direction per joint (15, 3): flexion; a power grasp's thumb also
+    opposes, a lateral grasp's thumb adducts onto the index."""
     d = np.zeros((15, 3))
     d[:, 0] = 1.0
-    if kind not in ("precision", "tripod"):
+    if kind == "lateral":
+        d[12] = _THUMB_CMC_LATERAL
+    elif kind not in PINCH_KINDS:
         d[12] = _THUMB_CMC_CLOSE
     return d
 
@@ -299,7 +338,7 @@ class GraspSynthesizer:
         when none of those holds (they rarely win the score: this halves the work)."""
         target = self._target(kind, up) if target is None else np.asarray(target, float)
         stages = [(ROLLS[:3], True, False), (ROLLS[3:], False, False)]
-        if kind == "precision" and self.mesh.extents[1] < FLAT_HEIGHT:
+        if kind in PINCH_KINDS and self.mesh.extents[1] < FLAT_HEIGHT:
             stages.append((ROLLS[:3], True, True))
         for rolls, wrap, flat in stages:
             aim = (
@@ -332,10 +371,11 @@ class GraspSynthesizer:
         R, rolls = self._orientations(side, dirs, finger_ref, kind, rolls, wrap)
         full, ids, sub = _light_hand(side, self.scale)
         local0 = np.broadcast_to(preshape_local(kind, flat=flat), (len(R), 15, 3)).copy()
-        if kind in ("precision", "tripod"):  # object centred between thumb and index tips
+        if kind in PINCH_KINDS:  # object centred where the closed finger pads meet
             t = target[None] - np.einsum("cij,j->ci", R, self._anchor(sub, local0, kind))
-        else:
-            t = self._place(sub, R, local0, target, R @ full.palm_normal, kind)
+        else:  # along the palm normal (lateral: the thumb side, which faces the object)
+            n = R[:, :, 2] if kind == "lateral" else R @ full.palm_normal
+            t = self._place(sub, R, local0, target, n, kind)
         ok = np.isfinite(t).all(axis=1)
         if ok.any() and (above_table or avoid is not None):
             # The pre-shape comes in and the hand opens to it again when letting go: it
@@ -352,6 +392,34 @@ class GraspSynthesizer:
         return self._pick(full, side, kind, R, t, local, local0, rolls, rng, above_table, avoid, up)
 
     # -- candidates ------------------------------------------------------------------
+    def grasp_types(self) -> list[str]:
+        """The grasp types this object admits (``GRASP_TYPES`` order).
+
+        Large objects: the two-handed hold only. Otherwise a power grasp when there is
+        something to wrap the fingers around (a middle extent of ``POWER_MIN_WIDTH`` or a
+        long object at least 2 cm thick), a handle grasp when the family holds the object
+        by its handle, and the pinches whose opening its thinnest extent fits
+        (``PINCH_WIDTH``); a lateral pinch also needs the object to stand
+        ``LATERAL_MIN_HEIGHT`` tall (the curled fingers hang below the index). Widths scale
+        with the hand. Never empty: the family's own kinds when nothing else fits.
+        """
+        if self.large:
+            return ["bimanual"]
+        ext = np.sort(np.asarray(self.mesh.extents, float))
+        k = self.scale
+        out = []
+        if ext[1] >= POWER_MIN_WIDTH * k or (ext[0] >= 0.02 * k and ext[2] >= 0.1 * k):
+            out.append("power")
+        if self.handles and self.hint == "handle":
+            out.append("handle")
+        for kind in ("precision", "tripod", "lateral"):
+            fits = ext[0] <= PINCH_WIDTH[kind] * k
+            if kind == "lateral":
+                fits &= bool(self.mesh.extents[1] >= LATERAL_MIN_HEIGHT)
+            if fits:
+                out.append(kind)
+        return out or self._kinds()
+
     def _kinds(self) -> list[str]:
         """Grasp kinds to try in order: the object's own hint first, then fallbacks."""
         if self.large:
@@ -365,7 +433,7 @@ class GraspSynthesizer:
     def _target(self, kind: str, up: float = 1.0) -> np.ndarray:
         if kind == "handle":
             return np.asarray(self.handles[0].point, float)
-        if kind in ("precision", "tripod"):  # pinch the upper part, clear of the table
+        if kind in (*PINCH_KINDS, "lateral"):  # pinch the upper part, clear of the table
             return np.array([self.centre[0], self.pinch_height(self.centre[1], up), self.centre[2]])
         return self.centre
 
@@ -429,7 +497,9 @@ class GraspSynthesizer:
                     fs = s * fw
                     candidates.append((fs, float(np.arccos(np.clip(fs @ f0, -1, 1)))))
             for f, r in candidates:
-                Rs.append(_hand_rotation(side, f, n))
+                R = _hand_rotation(side, f, n)
+                # lateral: the same finger direction, the side of the index to the object
+                Rs.append(R @ _LATERAL_TURN if kind == "lateral" else R)
                 roll_of.append(r)
         return np.stack(Rs), np.asarray(roll_of)
 
@@ -445,13 +515,19 @@ class GraspSynthesizer:
         """Point of the hand (hand frame) that should meet the target (3,).
 
         Precision: where the thumb and index tips meet when the pinch closes, so closing
-        squeezes an object placed there from both sides. Power: the palm centre.
+        squeezes an object placed there from both sides; tripod: between the thumb tip and
+        the middle of the index and middle tips. Lateral: the middle of the index's middle
+        phalanx (the side of the finger the thumb presses the object against). Power: the
+        palm centre.
         """
-        if kind in ("precision", "tripod"):
+        if kind in PINCH_KINDS:
             closed = preshape_local(kind, _PINCH_CLOSED)[None]
             _, j = _pose(sub, np.eye(3)[None], np.zeros((1, 3)), closed)
-            return 0.5 * (j[0, 16] + j[0, 17])
+            fingers = j[0, 17] if kind == "precision" else 0.5 * (j[0, 17] + j[0, 18])
+            return 0.5 * (j[0, 16] + fingers)
         v, j = _pose(sub, np.eye(3)[None], np.zeros((1, 3)), local[:1])
+        if kind == "lateral":  # the middle of the index's middle phalanx
+            return 0.5 * (j[0, 2] + j[0, 3])
         palm = j[0, [0, 4, 10]].mean(0)  # wrist, middle and ring knuckles: palm centre
         return palm + 0.45 * (j[0, 5] - j[0, 4])  # a little towards the fingers
 
@@ -475,6 +551,8 @@ class GraspSynthesizer:
         travelled = np.zeros(len(R))
         done = np.zeros(len(R), bool)
         v0, _ = _pose(sub, R, np.zeros_like(t), local)  # the pose only translates: skin it once
+        if kind == "lateral":  # the open thumb stands beside the object: it closes onto it later
+            v0 = v0[:, ~np.isin(sub.bone_ids_subset, np.array(CHAINS["thumb"]) + 1)]
         limit = start + self.radius
         for _ in range(40):
             act = np.flatnonzero(~done & (travelled <= limit))  # the others stay put (or missed)
@@ -508,8 +586,8 @@ class GraspSynthesizer:
             sub, moving = levels[level]
             joints = [CHAINS[f][level] for f in FINGERS]
             room = np.stack([_room(local[:, j], dirs[j], lower[j], upper[j]) for j in joints], 1)
-            if kind == "precision":  # a pinch: ring and pinky stay tucked, out of the way
-                room[:, [FINGERS.index("ring"), FINGERS.index("pinky")]] = 0.0
+            # a pinch leaves the fingers it does not use in their pre-shape, out of the way
+            room[:, [FINGERS.index(f) for f in _IDLE_FINGERS.get(kind, ())]] = 0.0
             lo, hi = self._sweep(sub, R, t, local, joints, dirs, room, moving)
             for _ in range(BISECT_STEPS):
                 mid = 0.5 * (lo + hi)

@@ -7,6 +7,12 @@ the :class:`Handover` between them (the object turned over, or split between the
 Approach directions are chosen in the world (from the subject) and grasps come back in
 the object frame. The verb of a ``use`` sequence comes from :mod:`.choreography`, which
 knows the objects that have a use motion.
+
+SynthGRAB v2: the grasp type of a one-handed grasp is drawn from the types the object
+admits (:meth:`GraspSynthesizer.grasp_types`) by a stream of its own (``kind_rng``), so it
+depends on neither the intent nor the arm's path; when the drawn type finds no grasp the
+others follow in a drawn order. Approach azimuths, elevations and the preferred finger
+direction are jittered per episode (``APPROACH_JITTER_DEG``, ``FINGER_JITTER_DEG``).
 """
 
 from __future__ import annotations
@@ -25,6 +31,10 @@ from .scene import BACKOFF_DIST, SIGN, Cast, EpisodeFailed, Handover, Scene, lon
 from .world import Subject
 
 HAND_CLEARANCE = 0.01  # m; minimum distance between the two hands holding one object
+# Per-episode jitter of a one-handed approach (deg): azimuth, elevation; and of the
+# preferred finger direction (yaw, pitch), so wrists come in from varied directions.
+APPROACH_JITTER_DEG = (15.0, 10.0)
+FINGER_JITTER_DEG = (40.0, 20.0)
 
 # One hand's part of an off-hand pass: world approach directions (A, 3), the object-frame
 # point it aims at (3,) and the grasp kinds it tries, in order.
@@ -60,12 +70,36 @@ def search_grasp(synth: GraspSynthesizer, side: str, obj_R: np.ndarray, dirs_wor
                  rng: np.random.Generator, kind: str | None = None,
                  target: np.ndarray | None = None,
                  above_table: bool = True, steep: bool | None = None,
-                 avoid: np.ndarray | None = None, up: float = 1.0) -> Grasp | None:
+                 avoid: np.ndarray | None = None, up: float = 1.0,
+                 finger_world: np.ndarray | None = None) -> Grasp | None:
     """A grasp for ``side`` from world approach directions, with the object at rotation
-    ``obj_R``."""
-    finger_ref = obj_R.T @ np.array([0.0, 0.0, 1.0])
+    ``obj_R``; ``finger_world`` (3,): preferred world finger direction (default forward, +z)."""
+    fw = np.array([0.0, 0.0, 1.0]) if finger_world is None else np.asarray(finger_world, float)
+    finger_ref = obj_R.T @ fw
     return synth.search(side, dirs_world @ obj_R, finger_ref, rng, kind=kind, target=target,
                         above_table=above_table, steep=steep, avoid=avoid, up=up)
+
+
+def grasp_order(synth: GraspSynthesizer, kind_rng: np.random.Generator,
+                kind: str | None = None) -> list[str]:
+    """The grasp types to try, in order: ``kind`` (or one drawn uniformly from those the
+    object admits), then the other admitted types in a drawn order."""
+    types = synth.grasp_types()
+    first = kind if kind is not None else types[int(kind_rng.integers(len(types)))]
+    rest = [types[i] for i in kind_rng.permutation(len(types)) if types[i] != first]
+    return [first, *rest]
+
+
+def jittered_approach(side: str, rng: np.random.Generator, azimuths: tuple[float, ...],
+                      elevations: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """One hand's world approach directions (A, 3) with the episode's jitter, and its
+    preferred world finger direction (3,): forward (+z) turned by a drawn yaw and pitch."""
+    da, de = (float(rng.uniform(-j, j)) for j in APPROACH_JITTER_DEG)
+    dirs = approach_dirs(side, False, tuple(a + da for a in azimuths),
+                         tuple(max(0.0, e + de) for e in elevations))
+    yaw_, pitch = (np.radians(float(rng.uniform(-j, j))) for j in FINGER_JITTER_DEG)
+    finger = np.array([np.sin(yaw_) * np.cos(pitch), np.sin(pitch), np.cos(yaw_) * np.cos(pitch)])
+    return dirs, finger
 
 
 def hands_clear(hand_models: dict, g1: Grasp, g2: Grasp, min_gap: float = HAND_CLEARANCE) -> bool:
@@ -100,9 +134,15 @@ def _search_part(synth: GraspSynthesizer, side: str, obj_R: np.ndarray, dirs: np
     return None
 
 
-def _kinds_for(synth: GraspSynthesizer, handle: bool = False) -> list[str]:
-    kinds = [k for k in synth._kinds() if k != "handle"]
-    return (["handle"] if handle else []) + kinds
+def _kinds_for(synth: GraspSynthesizer, handle: bool = False,
+               rng: np.random.Generator | None = None) -> list[str]:
+    """Kinds one hand of an off-hand pass tries: the object's own (v1) kinds first, then
+    the other admitted types (in a drawn order when ``rng`` is given)."""
+    own = [k for k in synth._kinds() if k != "handle"]
+    extra = [k for k in synth.grasp_types() if k not in own and k != "handle"]
+    if rng is not None and extra:
+        extra = [extra[i] for i in rng.permutation(len(extra))]
+    return (["handle"] if handle else []) + own + extra
 
 
 def flip_axis(tools: ObjectTools, obj_R: np.ndarray) -> np.ndarray | None:
@@ -176,7 +216,7 @@ def _flip_grasps(tools: ObjectTools, subject: Subject, scene: Scene,
     # for the right
     sgn = -SIGN[N] * (1.0 if a_w[2] >= 0 else -1.0)
     half_R, mid_R = _turn(a_w, sgn * np.pi / 2) @ R0, R0 @ _turn(e, np.pi)
-    kinds = _kinds_for(synth)
+    kinds = _kinds_for(synth, rng=rng)
     n_kinds = sorted(kinds, key=lambda k: k not in ("precision", "tripod"))
     # the off hand from above; the dominant hand from above at the handover, which is
     # from the object's own bottom: it puts the object down upside down
@@ -204,7 +244,7 @@ def _split_grasps(tools: ObjectTools, subject: Subject, scene: Scene, rng: np.ra
     N, D = subject.off_hand, subject.dominant
     inst, synth = tools.inst, tools.synth(subject.hand_scale)
     R0, c, ext = scene.obj_R, synth.centre, inst.mesh.extents
-    kinds = _kinds_for(synth)
+    kinds = _kinds_for(synth, rng=rng)
     if layout == "handle":
         h = np.asarray(inst.handles[0].point, float) - c
         h[1] = 0.0
@@ -277,8 +317,16 @@ def offhand_grasps(tools: ObjectTools, subject: Subject, scene: Scene,
 
 # --- the cast ----------------------------------------------------------------------------
 def make_cast(subject: Subject, inst: ObjectInstance, scene: Scene, intent: str,
-              rng: np.random.Generator, tools: ObjectTools) -> Cast:
-    """Search the grasps an episode needs; :class:`EpisodeFailed` when one cannot be found."""
+              rng: np.random.Generator, tools: ObjectTools, *,
+              kind_rng: np.random.Generator | None = None, grasp_kind: str | None = None,
+              jitter: bool = True) -> Cast:
+    """Search the grasps an episode needs; :class:`EpisodeFailed` when one cannot be found.
+
+    kind_rng: the stream the one-handed grasp type is drawn from (:func:`grasp_order`;
+    default: ``rng``); grasp_kind: try this type first instead of drawing one.
+    jitter: vary the approach directions and finger direction (SynthGRAB v2); False gives
+    v1's fixed approach fans.
+    """
     D, N = subject.dominant, subject.off_hand
     synth = tools.synth(subject.hand_scale)
     verb = use_verb(inst) if intent == "use" else intent
@@ -304,8 +352,17 @@ def make_cast(subject: Subject, inst: ObjectInstance, scene: Scene, intent: str,
     else:
         sides = (D,)
         face = intent == "use" and inst.use_motion in ("drink", "eat", "brush", "look")
-        dirs = approach_dirs(D, False, (30, 60, 80), (0, 35)) if face else approach_dirs(D, False)
-        grasps = {D: search_grasp(synth, D, scene.obj_R, dirs, rng)}
+        fan = ((30, 60, 80), (0, 35)) if face else ((0, 30, 60), (0, 35, 70))
+        if jitter:
+            dirs, finger = jittered_approach(D, rng, *fan)
+        else:
+            dirs, finger = approach_dirs(D, False, *fan), None
+        grasps = {D: None}
+        for kind in grasp_order(synth, rng if kind_rng is None else kind_rng, grasp_kind):
+            grasps[D] = search_grasp(synth, D, scene.obj_R, dirs, rng, kind=kind,
+                                     finger_world=finger)
+            if grasps[D] is not None:
+                break
     missing = [s for s, g in grasps.items() if g is None]
     if missing:
         raise EpisodeFailed(f"no {'/'.join(missing)} grasp of {inst.name} for {intent}")

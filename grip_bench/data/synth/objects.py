@@ -10,8 +10,16 @@ placed with its origin at `table_y + rest_height` stands on the table.
 
 Public API
 - `FAMILIES`: `Registry[ObjectFamily]`, ordered; `FAMILIES.get("mug")`.
-- `make_instance(family_name, rng, index) -> ObjectInstance`
-- `make_object_set(seed, n_per_family=1, families=None) -> list[ObjectInstance]`
+- `make_instance(family_name, rng, index, variation=False) -> ObjectInstance`
+- `make_object_set(seed, n_per_family=1, families=None, variation=True) -> list[ObjectInstance]`
+- `reshape_instance(inst, stretch, lying=None) -> ObjectInstance`
+
+Shape variation (SynthGRAB v2): besides its family parameters every generated instance is
+stretched by its own non-uniform scale (`STRETCH_RANGE` per axis, then scaled as a whole
+back into the family's size range), so apertures and finger closures vary continuously
+within a family; round-sectioned objects without a use motion (`LYING_FAMILIES`) may lie
+on their side. Both are drawn after the parameters, so the parameters of an instance are
+those of the unvaried build.
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ from ...core.constants import (
     SYNTH_OBJ_SEGMENTS_LARGE,
     SYNTH_OBJ_SEGMENTS_SMALL,
 )
+from ...core.errors import InputError
 from ...core.registry import Registry
 
 GRASP_HINTS = ("power", "precision", "tripod", "lateral", "bimanual", "handle")
@@ -107,11 +116,19 @@ class ObjectInstance:
     large: bool
     rest_height: float  # m, origin to lowest point (along -y)
     handles: list[HandleRegion] = field(default_factory=list)
+    stretch: tuple[float, float, float] = (1.0, 1.0, 1.0)  # object-frame scale of the build
+    lying: bool = False  # turned onto its side (long axis along x) before stretching
 
     @property
     def tags(self) -> dict[str, object]:
         """The family tags as a plain dict (for manifests)."""
         return {"grasp_hint": self.grasp_hint, "use_motion": self.use_motion, "large": self.large}
+
+    @property
+    def shape(self) -> dict[str, object]:
+        """The instance's shape variation as a plain dict (for manifests)."""
+        return {"stretch": [round(float(x), 4) for x in self.stretch], "lying": self.lying,
+                "extents_m": [round(float(x), 4) for x in self.mesh.extents]}
 
 
 # ------------------------------------------------------------------ primitives
@@ -771,9 +788,23 @@ def instance_name(family_name: str, index: int) -> str:
     return family_name if index == 0 else f"{family_name}_{index + 1}"
 
 
-def make_instance(family_name: str, rng: np.random.Generator, index: int = 0) -> ObjectInstance:
+# Per-axis stretch of a varied instance: a factor exp(u), u uniform in +-log(1.25), so
+# proportions change by up to ~1.25 per axis and ~1.55 between two axes (then the whole is
+# scaled back into the family's size range).
+STRETCH_RANGE = (1 / 1.25, 1.25)
+# Families whose instances may lie on their side (round section, no use motion that needs
+# them upright), and how often.
+LYING_FAMILIES = ("cylindersmall", "cylindermedium", "cylinderlarge")
+LYING_PROBABILITY = 0.4
+
+
+def make_instance(
+    family_name: str, rng: np.random.Generator, index: int = 0, variation: bool = False
+) -> ObjectInstance:
     """Draw and build one instance of a family.
 
+    variation: also draw the instance's stretch and (for `LYING_FAMILIES`) whether it lies
+    on its side (after the parameters, from the same stream; see the module docstring).
     Returns an `ObjectInstance` whose mesh is float64 metres, y up, centred at its
     bounding-box centre, watertight with outward normals.
     """
@@ -784,7 +815,7 @@ def make_instance(family_name: str, rng: np.random.Generator, index: int = 0) ->
     lo, hi = mesh.bounds
     centre = (lo + hi) / 2
     mesh.vertices = mesh.vertices - centre
-    return ObjectInstance(
+    inst = ObjectInstance(
         name=instance_name(family_name, index),
         family=family_name,
         mesh=mesh,
@@ -795,6 +826,64 @@ def make_instance(family_name: str, rng: np.random.Generator, index: int = 0) ->
         rest_height=float(centre[1] - lo[1]),
         handles=[_move_handle(h, centre) for h in built.handles],
     )
+    if not variation:
+        return inst
+    lo_s, hi_s = np.log(STRETCH_RANGE)
+    stretch = np.exp(rng.uniform(lo_s, hi_s, size=3))
+    lying = family_name in LYING_FAMILIES and bool(rng.random() < LYING_PROBABILITY)
+    return reshape_instance(inst, stretch, lying=lying, size_range=fam.size_range)
+
+
+_LIE = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # +y -> -x: a quarter turn
+
+
+def reshape_instance(
+    inst: ObjectInstance,
+    stretch: Sequence[float],
+    lying: bool | None = None,
+    size_range: tuple[float, float] | None = None,
+) -> ObjectInstance:
+    """The instance stretched by `stretch` (3,) along the object axes (after turning it onto
+    its side when `lying`), re-centred, with its handles and rest height following.
+
+    size_range (m): when given, the stretched object is scaled as a whole so that its
+    largest extent stays within it (the stored stretch includes that scale).
+    A stretch of a stretched instance multiplies; `lying` given for an already lying
+    instance turns nothing again. Used by the generator and to make same-family variants
+    of one instance (different size or proportions, the same build).
+    """
+    S = np.asarray(stretch, float).reshape(3)
+    if not (np.isfinite(S).all() and (S > 0).all()):
+        raise InputError(f"stretch factors must be positive, got {S.tolist()}", "stretch")
+    turn = bool(lying) and not inst.lying
+    v = np.asarray(inst.mesh.vertices, float)
+    R = _LIE if turn else np.eye(3)
+    v = v @ R.T
+    ext = (v.max(0) - v.min(0)) * S
+    if size_range is not None:
+        big = float(ext.max())
+        lo_r, hi_r = size_range  # (a hair inside, so that rounding keeps it within)
+        S = S * float(np.clip(big, lo_r * (1 + 1e-9), hi_r * (1 - 1e-9))) / big
+    v = v * S
+    lo, hi = v.min(0), v.max(0)
+    centre = (lo + hi) / 2
+    mesh = trimesh.Trimesh(v - centre, np.asarray(inst.mesh.faces), process=False)
+    handles = []
+    for h in inst.handles:
+        axis = S * (R @ np.asarray(h.axis, float))
+        k = float(np.linalg.norm(axis))
+        across = np.delete(S, int(np.argmax(np.abs(R @ np.asarray(h.axis, float)))))
+        handles.append(HandleRegion(
+            h.name, tuple(float(x) for x in S * (R @ np.asarray(h.point, float)) - centre),
+            tuple(float(x) for x in axis / k), h.length * k, h.thickness * float(across.mean())))
+    prev = np.asarray(inst.stretch, float)
+    total = S * (prev[np.abs(R).argmax(1)] if turn else prev)
+    return ObjectInstance(
+        name=inst.name, family=inst.family, mesh=mesh, params=inst.params,
+        grasp_hint=inst.grasp_hint, use_motion=inst.use_motion, large=inst.large,
+        rest_height=float(-lo[1] + centre[1]), handles=handles,
+        stretch=tuple(float(x) for x in total), lying=inst.lying or turn,
+    )
 
 
 def _instance_rng(seed: int, family_name: str, index: int) -> np.random.Generator:
@@ -803,12 +892,19 @@ def _instance_rng(seed: int, family_name: str, index: int) -> np.random.Generato
 
 
 def make_object_set(
-    seed: int, n_per_family: int = 1, families: Sequence[str] | None = None
+    seed: int,
+    n_per_family: int = 1,
+    families: Sequence[str] | None = None,
+    variation: bool = True,
 ) -> list[ObjectInstance]:
-    """Build `n_per_family` instances of each family (all by default), deterministic in `seed`."""
+    """Build `n_per_family` instances of each family (all by default), deterministic in `seed`.
+
+    variation: each instance with its own stretch (and side) as SynthGRAB v2 generates them;
+    False builds the unvaried family instances (SynthGRAB v1's objects).
+    """
     names = list(families) if families is not None else FAMILIES.names()
     return [
-        make_instance(name, _instance_rng(seed, name, i), i)
+        make_instance(name, _instance_rng(seed, name, i), i, variation=variation)
         for name in names
         for i in range(n_per_family)
     ]

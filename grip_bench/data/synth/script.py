@@ -95,7 +95,7 @@ class Script:
 
     fps: float
     rest: dict  # side -> (p (3,), R (3, 3)) rest wrist frames
-    relaxed: dict  # side -> (15, 3) relaxed finger pose
+    relaxed: dict  # side -> (15, 3) relaxed finger pose, or (2, 15, 3): before / after
     obj_rest: tuple  # (R (3, 3), p (3,))
     t: int = 0
     wrist: dict = field(default_factory=dict)
@@ -104,8 +104,13 @@ class Script:
     carrier: list = field(default_factory=list)  # (a, b, side): frames [a, b)
     attached: list = field(default_factory=list)  # (a, b, side)
     phases: list = field(default_factory=list)  # (name, a, b)
+    relaxed_end: dict = field(init=False, default_factory=dict)  # side -> (15, 3)
 
     def __post_init__(self) -> None:
+        # an idle hand's pose before the grasp (``relaxed``) and after it (``relaxed_end``)
+        poses = {s: np.asarray(self.relaxed[s], float) for s in SIDES}
+        self.relaxed = {s: p[0] if p.ndim == 3 else p for s, p in poses.items()}
+        self.relaxed_end = {s: p[-1] if p.ndim == 3 else p for s, p in poses.items()}
         for s in SIDES:
             self.wrist[s] = Track()
             self.wrist[s].add(0, *self.rest[s])

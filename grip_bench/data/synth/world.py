@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 GENERATOR_NAME = "SynthGRAB"
-GENERATOR_VERSION = "1.0"
+GENERATOR_VERSION = "2.0"
 
 # GRAB's intents; "use" becomes an object-specific verb as in GRAB's file names.
 INTENTS = ("lift", "pass", "use", "offhand")
@@ -75,7 +75,7 @@ class Profile:
 
 PROFILES = {
     "smoke": Profile("smoke", 10, 1, 20, (0.35, 0.2, 0.3, 0.15)),
-    "default": Profile("default", 10, 2, 300, (0.3, 0.25, 0.3, 0.15)),
+    "default": Profile("default", 10, 3, 300, (0.3, 0.25, 0.3, 0.15)),
     "large": Profile("large", 10, 4, 1300, (0.3, 0.25, 0.3, 0.15)),
 }
 
