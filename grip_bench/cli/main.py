@@ -17,7 +17,7 @@ from ..core.version import __version__
 # Each module defines ``register(subparsers)`` and sets ``func`` on its parser.
 # Later issues append their subcommand modules here.
 SUBCOMMANDS = ["ls", "data", "export", "evaluate", "validity", "train", "predict", "run", "report",
-               "bench", "view", "render", "study", "stream"]
+               "bench", "view", "render", "study", "stream", "counterfactual"]
 
 DESCRIPTION = """\
 grip-bench: train and evaluate hand-object interaction motion synthesis
