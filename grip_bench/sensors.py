@@ -10,6 +10,9 @@
 - **Future cue**: per hand, the mean distance of the mean hand's 99 proximity vertices
   to the object at frames t+1 .. t+n and its rate of change (m/s); frames past the end
   repeat the last one (rate 0).
+- **Object pose** (``grip-blind``'s object input, no geometry): per hand, the object
+  frame's origin and the object's rotation in the wrist frame (the object's rigid motion
+  relative to the hand); it reads the object's pose, never its mesh.
 
 ``d`` is the distance to the object surface, clamped at 0 inside (feature 1). Every
 function works on whole sequences: world points ``(T, N, 3)`` go into the object's frame
@@ -214,6 +217,39 @@ def future_cue(
     rate = np.diff(d, axis=1) * fps  # (T, n, 2)
     cue = np.stack([d[:, 1:], rate], -1)  # (T, n, 2 hands, 2)
     return cue.transpose(0, 2, 1, 3).reshape(T, -1).astype(np.float32)
+
+
+def object_pose_feature(
+    obj_rot: np.ndarray, obj_transl: np.ndarray, wrist_rot: np.ndarray, wrist_transl: np.ndarray
+) -> np.ndarray:
+    """The object's pose in each wrist frame ``(..., 2, 9)`` float32: per hand the object
+    frame's origin in the wrist frame (3, m), then the object's rotation in the wrist
+    frame (6D, ``geometry.rotations`` layout).
+
+    ``obj_rot (..., 3, 3)`` is GRAB's row-vector rotation (``world = local @ R + t``, so the
+    column rotation is ``R^T``), ``obj_transl (..., 3)`` m; wrists ``wrist_rot
+    (..., 2, 3, 3)``, ``wrist_transl (..., 2, 3)`` (``world = R_w @ local + t_w``). A point
+    ``p`` of the object frame sits at ``R_w^T (R^T p + t - t_w)`` in the wrist frame. Only
+    poses enter: the same poses with another mesh give the same feature.
+    """
+    from .geometry.rotations import matrix_to_rotation_6d
+
+    r_w = np.asarray(wrist_rot, np.float64)
+    r_wt = np.swapaxes(r_w, -1, -2)  # R_w^T
+    t = np.asarray(obj_transl, np.float64)[..., None, :] - np.asarray(wrist_transl, np.float64)
+    origin = np.einsum("...ij,...j->...i", r_wt, t)
+    col = np.swapaxes(np.asarray(obj_rot, np.float64), -1, -2)[..., None, :, :]  # R^T per hand
+    rot = matrix_to_rotation_6d(np.matmul(r_wt, col))
+    return np.concatenate([origin, rot], -1).astype(np.float32)
+
+
+def object_pose_sensor(seq: Sequence, wrists: dict | None = None) -> np.ndarray:
+    """:func:`object_pose_feature` of every frame of ``seq`` ``(T, 2, 9)`` (hands left,
+    right) at ``wrists`` ``{side: (rot (T,3,3), transl (T,3))}`` (default: the sequence's)."""
+    frames = [wrists[s] if wrists else wrist_frames(seq, s) for s in NET_SIDES]
+    return object_pose_feature(seq.object_rotations(), np.asarray(seq.object["transl"], float),
+                               np.stack([f[0] for f in frames], 1),
+                               np.stack([f[1] for f in frames], 1))
 
 
 @dataclass

@@ -100,7 +100,7 @@ ANET_ELBOW_SIGMA = 0.03  # rad
 # ANet's second training noise: the wrist translation noise of GRAB-T's larger level, mapped
 # to the arms by IK (the perturbation family the TOCH-style refiner also trains on).
 ANET_WRIST_SIGMA = 0.02  # m, per axis and frame
-ANET_NOISE_SCALE = (0.25, 1.25)  # per-sample scale of either training noise (grip.train)
+ANET_NOISE_SCALE = (0.0, 1.25)  # per-sample scale of either training noise (0: clean input too)
 ANET_WRIST_SHARE = 0.5  # share of ANet's training samples that carry the wrist noise
 
 # --- body ---

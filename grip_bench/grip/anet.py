@@ -50,6 +50,11 @@ class ANetConfig:
     n_dec_blocks: int = 4
     dropout: float = GRIP_DROPOUT
     consistency: str = "latent"  # "latent" | "output" | "none"
+    # Feed the noisy future frames as differences from the current frame. The correction is
+    # a small difference of nearly equal poses, which a network reading absolute 6D poses
+    # learned only slowly (an ANet trained the profile's way stayed at the zero correction);
+    # False keeps the absolute input of checkpoints written before this field existed.
+    relative_future: bool = False
 
     def __post_init__(self) -> None:
         check_mode(self.consistency)
@@ -105,6 +110,8 @@ class ANet(nn.Module):
         check_shape(current, (None, c.n_joints, c.rot_dim), "ANet current")
         b = current.shape[0]
         check_shape(noisy_future, (b, c.n_future, c.n_joints, c.rot_dim), "ANet noisy_future")
+        if c.relative_future:
+            noisy_future = noisy_future - current[:, None]
         parts = [current.flatten(1), noisy_future.flatten(1)]
         if c.context_dim:
             if context is None:

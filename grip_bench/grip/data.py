@@ -11,8 +11,10 @@ Per frame (hands ordered left, right; ``net_*`` arrays as GRIP's networks read t
   (2,)`` m (the future cue is assembled per variant from it, ``sensors.future_cue``).
 - targets ``gt_poses (2, 15, 6)`` and ``gt_proximity (2, 99)`` (exp(-50 d) of the GT
   hands' proximity vertices), ``gt_min_dist (2,)`` m (RNet's interaction mask).
-- ANet: ``arms (4, 6)`` (left/right shoulder, left/right elbow, local 6D) and
-  ``noisy_arms`` from ``perturb_sequence(seq, "arm")`` (0.01 / 0.03 rad).
+- ANet: ``arms (4, 6)`` (left/right shoulder, left/right elbow, local 6D),
+  ``noisy_arms`` from ``perturb_sequence(seq, "arm")`` (0.01 / 0.03 rad) and
+  ``noisy_arms_wrist``: the arms that reach wrists moved by ``ANET_WRIST_SIGMA`` (IK,
+  :func:`wrist_noise_arms`).
 - object and wrist transforms, for recomputing proximity on predicted hands (RNet data).
 
 Whole splits are cached in one ``.npz`` keyed by the dataset hash and the feature version.
@@ -39,14 +41,14 @@ from ..core.frames import NET_SIDES
 from ..core.io import atomic_file
 from ..core.threads import single_thread
 from ..geometry.rotations import axis_angle_to_matrix, matrix_to_rotation_6d
-from ..sensors import ambient_sensor, stage_one, wrist_frames
+from ..sensors import ambient_sensor, object_pose_feature, stage_one, wrist_frames
 
 if TYPE_CHECKING:
     from ..bodies.hand import ProceduralHand
     from ..data.library import ObjectLibrary
     from ..data.sequence import Sequence
 
-FEATURE_VERSION = 1  # bump when any per-frame array changes meaning
+FEATURE_VERSION = 2  # bump when any per-frame array changes meaning
 ARM_JOINTS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow")
 N_SHAPE = 10
 
@@ -201,6 +203,7 @@ def sequence_features(
         "gt_min_dist": gt_d.min(axis=2).astype(np.float32),
         "arms": arms_6d(seq.body["body_pose"]),
         "noisy_arms": arms_6d(noisy.body["body_pose"]),
+        "noisy_arms_wrist": wrist_noise_arms(seq, rng),
         "wrist_rot": np.stack([wrists[s][0] for s in NET_SIDES], 1).astype(np.float32),
         "wrist_transl": np.stack([wrists[s][1] for s in NET_SIDES], 1).astype(np.float32),
         "obj_rot": seq.object_rotations().astype(np.float32),
@@ -210,6 +213,18 @@ def sequence_features(
     if voxel:
         out["voxel"] = voxel_feature(library, seq, wrists)
     return out
+
+
+def wrist_noise_arms(seq: Sequence, rng: np.random.Generator) -> np.ndarray:
+    """Arms ``(T, 4, 6)`` whose wrists reach the hand wrists moved by ``N(0, ANET_WRIST_SIGMA^2)``
+    per axis and frame: GRAB-T's noise as ANet sees it in refine mode (two-bone IK, each
+    frame's swivel kept, as ``pipeline.arms_to_wrists`` maps a perturbed test input)."""
+    from ..data.perturb import perturb_sequence
+    from ..sensors import wrist_frames
+    from .pipeline import arms_to_wrists
+
+    moved = perturb_sequence(seq, "T", C.ANET_WRIST_SIGMA, rng)
+    return arms_6d(arms_to_wrists(moved, {s: wrist_frames(moved, s) for s in NET_SIDES}))
 
 
 def voxel_feature(
@@ -247,6 +262,7 @@ class FrameSet:
     obj_rot: np.ndarray
     obj_transl: np.ndarray
     hand_scale: np.ndarray
+    noisy_arms_wrist: np.ndarray | None = None  # None in a FrameSet built without it (tests)
     voxel: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -260,6 +276,13 @@ class FrameSet:
         """Frames t with a following frame t+1 in their sequence (CNet's pairs)."""
         idx = np.arange(len(self))
         return idx[idx + 1 < self.end]
+
+    def object_pose(self, idx: np.ndarray) -> np.ndarray:
+        """``grip-blind``'s object input ``(*idx.shape, 2, 9)`` float32 of frames ``idx``
+        (:func:`~grip_bench.sensors.object_pose_feature` of the stored object and wrist
+        poses: no mesh is read, so the feature cache needs no new array)."""
+        return object_pose_feature(self.obj_rot[idx], self.obj_transl[idx],
+                                   self.wrist_rot[idx], self.wrist_transl[idx])
 
     def future(self, idx: np.ndarray, n: int, online: bool = False) -> np.ndarray:
         """Future cue ``(B, 2*2*n)`` of frames ``idx`` (``sensors.future_cue`` layout)."""

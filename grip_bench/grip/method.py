@@ -4,6 +4,8 @@ Every variant is :class:`GripMethod` with different options. Variants whose trai
 switches agree (``train_key``) train identical networks and may share a checkpoint:
 ``grip``, ``grip-no-rnet`` and ``grip-future10`` all train ``Variant()`` and differ only
 at prediction time (``grip-no-rnet`` skips RNet).
+``grip-blind`` is a probe of the data rather than an ablation: it sees the body's and the
+object's rigid motion but no object geometry (``Variant(geometry=False)``).
 
 ``predict`` reads from :class:`~grip_bench.methods.api.PredictContext`:
 ``online`` (streaming), ``future_frames`` (must match the checkpoint), ``use_anet``
@@ -30,10 +32,14 @@ class GripMethod:
     """One GRIP variant: training switches (a :class:`Variant`) plus ``use_rnet``."""
 
     def __init__(self, name: str = "grip", *, ambient: str = "distance", proximity: bool = True,
-                 consistency: str = "latent", future_frames: int = 10, use_rnet: bool = True):
+                 consistency: str = "latent", future_frames: int = 10, use_rnet: bool = True,
+                 geometry: bool = True):
         self.name = name
         self.variant = Variant(ambient=ambient, proximity=proximity, consistency=consistency,
-                               future_frames=future_frames)
+                               future_frames=future_frames, geometry=geometry)
+        if use_rnet and not geometry:
+            raise InputError("a variant without geometry cannot use RNet (it reads proximity)",
+                             name)
         self.use_rnet = use_rnet
         self.nets: dict | None = None
         self.meta: dict = {}
@@ -88,6 +94,11 @@ VARIANTS = {
        for n in (0, 3, 5)},
     # the default cue: identical to grip (Table 4-right's 10-frame row reads grip's results)
     "grip-future10": ("GRIP with a 10-frame future distance cue (= grip)", {"future_frames": 10}),
+    # a probe of the data (a reference row of Table 2, never marked best there): body motion
+    # and the object's rigid motion only; no Ambient, no Proximity, no future cue, no RNet
+    "grip-blind": ("GRIP blind to object geometry: body and object-pose motion only (probe)",
+                   {"geometry": False, "ambient": "none", "proximity": False,
+                    "future_frames": 0, "use_rnet": False}),
 }
 
 for _name, (_desc, _opts) in VARIANTS.items():

@@ -10,7 +10,8 @@ ANet -> stage one -> CNet -> stage two -> RNet:
    wrist = body wrist) is exactly the denoised body's wrist. Without ANet
    (``use_anet=False``) the input wrists are used.
 2. **Stage one**: ambient + mean-hand proximity at those wrists, future cue -> **CNet**
-   on pairs (t, t+1) -> both hands' poses.
+   on pairs (t, t+1) -> both hands' poses (``grip-blind``: the object's pose in the wrist
+   frames instead, no sensor and no RNet; ``train.Variant``).
 3. **Stage two**: proximity recomputed on CNet's hands -> **RNet** on interaction frames
    (a hand vertex within ``interaction_distance`` of the object), per hand.
 
@@ -43,7 +44,13 @@ from ..core import constants as C
 from ..core.errors import InputError
 from ..core.frames import NET_SIDES
 from ..geometry.rotations import matrix_to_axis_angle, rotation_6d_to_axis_angle
-from ..sensors import future_cue, proximity_feature, stage_one, wrist_frames
+from ..sensors import (
+    future_cue,
+    object_pose_sensor,
+    proximity_feature,
+    stage_one,
+    wrist_frames,
+)
 from .data import (
     ARM_JOINTS,
     arms_6d,
@@ -78,6 +85,11 @@ class Options:
     precision: str = "fp32"  # network arithmetic: "fp32" or "bf16" (grip_bench.grip.frozen)
     gemv: bool = False  # batch-1 GEMV kernels (GripStream; offline keeps addmm's rounding)
 
+    def __post_init__(self) -> None:
+        if self.use_rnet and not self.variant.geometry:  # its RNet is untrained (Variant)
+            raise InputError("a variant without geometry has no RNet (RNet reads proximity)",
+                             "use_rnet")
+
 
 def _t(a: ArrayLike) -> torch.Tensor:
     return torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)
@@ -100,9 +112,10 @@ def denoise_arms_many(anet: ANet, noisy: list[np.ndarray], online: bool = False,
     Offline, each sequence is cut into pieces of ``chunk`` output frames, each run from
     ``ANET_WARMUP`` frames earlier (started, like frame 0, on the noisy frame) with its full
     future window, and every piece's step t is one batched ANet call. The recursion forgets
-    its start within a few frames (the trained default ANet: max difference 7e-7 after 4
-    warm-up frames, 3e-8 after 8, float32 rounding), so this equals the one long recursion
-    while running ``T / chunk`` times fewer sequential steps: a wide ANet is bound by its
+    its start within a few frames (the default profile's ANet on 12 GRAB-T 0.01 test
+    sequences: largest 6D difference 3e-4 after 8 warm-up frames, against 0.02 of noise), so
+    this nearly equals the one long recursion while running ``T / chunk`` times fewer
+    sequential steps: a wide ANet is bound by its
     weights' memory traffic, once per step. ``chunk=0`` and online mode run the plain
     recursion (online, each frame only sees the past).
     """
@@ -299,6 +312,12 @@ class GripPipeline:
         ``(T, 2, A)``, proximity ``(T, 2, 99)`` (the variant's ablations applied) and the future
         cue ``(T, 4 n)`` of every frame (online: each frame's from that frame alone)."""
         v = self.opt.variant
+        if not v.geometry:  # the object's pose in the wrist frames; its mesh is never read
+            T = seq.n_frames
+            return {"body": body_context(seq, wrists, body_pose),
+                    "ambient": object_pose_sensor(seq, wrists),
+                    "proximity": np.zeros((T, 2, C.PROXIMITY_N_VERTS), np.float32),
+                    "cue": np.zeros((T, 0), np.float32)}
         kind = "none" if v.ambient == "none" else v.ambient
         one = stage_one(library, seq, wrists, kind)
         amb, prox = sensor_inputs(one.ambient, one.proximity, v)

@@ -17,9 +17,16 @@ vertices alike); measured on the default profile's test split when the weight wa
 (RNet retrained alone on one CNet), right hand: IV 1.14 -> 0.50 cm3 and contact ratio
 98.4 -> 98.4 % with ``w_penetration = 1``.
 
-ANet is trained residually: it predicts the 6D correction of the noisy arm frames
-(the target of frame t, given clean, is 0) and its head starts at zero, so an undertrained
-ANet leaves the arms as they are instead of replacing them with a blurred mean.
+ANet is trained residually: it predicts the 6D correction of the noisy arm frames and its
+head starts at zero, so an undertrained ANet leaves the arms as they are instead of
+replacing them with a blurred mean. Its samples (``anet_batch``) carry the paper's joint
+noise or GRAB-T-like wrist noise mapped to the arms by IK, at a drawn scale (clean input
+included), and frame t carries part of its own noise, as ANet's previous output does in
+the recursion. Measured on the default data (12 GRAB-T 0.01 test sequences, both wrists)
+when this was chosen: the wrist error 15.9 mm of the input falls to 11.9 mm, and clean
+input moves by 1.1 mm; the earlier ANet (clean frame t, joint noise only, 4 epochs on
+12,000 frames) moved no wrist by more than 0.2 mm, and trained longer the same way its
+recursion drifted by half a metre.
 
 Under torchrun (or ``grip-bench train --nproc N``) the three networks train with DDP
 (gloo, CPU; :mod:`grip_bench.nn.ddp`): ``batch_size`` is the global batch, each rank takes
@@ -78,20 +85,41 @@ class Variant:
     ``ambient``: "distance" (GRIP), "voxel" or "none"; ``proximity``: the stage-one
     proximity input. An ablated sensor is fed as a constant 0 (one input per hand for
     ambient; the 99 proximity inputs stay so that CNet still predicts proximity as a target).
+
+    ``geometry=False`` (``grip-blind``, a probe of the data, not a GRIP ablation): CNet sees
+    no object geometry. It needs every geometry input off (``ambient="none"``,
+    ``proximity=False``, ``future_frames=0``: the cue is a distance to the surface), and
+    the ambient slot carries the object's pose in each wrist frame instead
+    (``sensors.object_pose_feature``, 9 per hand). RNet reads proximity, so it is neither
+    trained nor run. The GT proximity stays CNet's auxiliary target (training only).
     """
 
     ambient: str = "distance"
     proximity: bool = True
     consistency: str = "latent"
     future_frames: int = C.FUTURE_FRAMES
+    geometry: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.geometry and (self.ambient != "none" or self.proximity
+                                  or self.future_frames):
+            raise InputError("a variant without geometry needs ambient='none', proximity=False "
+                             "and future_frames=0 (each reads the object's surface)", "geometry")
 
     def train_key(self) -> str:
-        """Identical keys train identical networks (methods may share a checkpoint)."""
-        return (f"ambient={self.ambient},proximity={int(self.proximity)},"
-                f"consistency={self.consistency},future={self.future_frames}")
+        """Identical keys train identical networks (methods may share a checkpoint).
+
+        A switch added later enters the key only where it differs from its default, so
+        every earlier variant keeps its key (and its checkpoints and caches)."""
+        key = (f"ambient={self.ambient},proximity={int(self.proximity)},"
+               f"consistency={self.consistency},future={self.future_frames}")
+        return key if self.geometry else key + ",geometry=0"
 
     @property
     def ambient_dim(self) -> int:
+        """CNet's ambient-slot inputs per hand (the object pose's 9 without geometry)."""
+        if not self.geometry:
+            return C.OBJECT_POSE_DIM
         return {"distance": C.AMBIENT_N_POINTS, "voxel": VOXEL_DIM, "none": 1}[self.ambient]
 
 
@@ -108,7 +136,8 @@ def build_configs(hp: dict, variant: Variant) -> dict:
         consistency=variant.consistency,
     )
     anet = ANetConfig(
-        hidden=hp["anet_hidden"], width=hp["anet_width"], latent=hp["latent"], dropout=drop
+        hidden=hp["anet_hidden"], width=hp["anet_width"], latent=hp["latent"], dropout=drop,
+        relative_future=True,
     )
     rnet = RNetConfig(hidden=hp["rnet_hidden"], width=hp["rnet_width"], dropout=drop)
     return {"anet": anet, "cnet": cnet, "rnet": rnet}
@@ -134,8 +163,11 @@ def cnet_batch(fs: FrameSet, idx: np.ndarray, variant: Variant) -> dict:
     """CNet inputs and targets for pairs (t, t+1) starting at frames ``idx``."""
     j = fs.next_index(idx)
     pair = np.stack([idx, j], 1)  # (B, 2)
-    amb = fs.voxel if variant.ambient == "voxel" else fs.ambient
-    amb, prox = sensor_inputs(amb[pair].astype(np.float32), fs.proximity[pair], variant)
+    if variant.geometry:
+        amb = fs.voxel if variant.ambient == "voxel" else fs.ambient
+        amb, prox = sensor_inputs(amb[pair].astype(np.float32), fs.proximity[pair], variant)
+    else:  # the object's pose in the wrist frames; no sensor reading enters
+        amb, prox = fs.object_pose(pair), np.zeros(fs.proximity[pair].shape, np.float32)
     return {
         "body": _t(fs.body[pair]), "ambient": _t(amb), "proximity": _t(prox),
         "future": _t(fs.future(idx, variant.future_frames)),
@@ -145,13 +177,45 @@ def cnet_batch(fs: FrameSet, idx: np.ndarray, variant: Variant) -> dict:
 
 
 def anet_batch(fs: FrameSet, idx: np.ndarray, cfg: ANetConfig) -> dict:
-    """ANet inputs (GT arms at t, noisy arms at t+1..t+5) and residual targets (B, F, 4, 6)."""
+    """ANet inputs (arms at t, noisy arms at t+1..t+5) and residual targets (B, F, 4, 6).
+
+    Each sample's noise is drawn from its frame index alone (so a DDP rank's share of a batch
+    gets the same samples as one process): the paper's joint noise or, for
+    ``ANET_WRIST_SHARE`` of the samples, the IK-mapped wrist noise (``noisy_arms_wrist``),
+    scaled by a factor in ``ANET_NOISE_SCALE``. Frame t carries a fraction in [0, 1) of its
+    own noise: at inference it is ANet's previous output, not the clean arms, and an ANet
+    trained on clean frames t trusts them fully, so its recursion drifted (wrists 0.5 m off
+    after 300 frames, measured on the default data).
+    """
     fut = np.stack([fs.next_index(idx, k) for k in range(1, cfg.n_future + 1)], 1)
     frames = np.stack([fs.next_index(idx, k) for k in range(cfg.n_frames)], 1)
-    noisy = fs.noisy_arms[frames]
-    noisy[:, 0] = fs.arms[idx]  # frame t is given clean: its correction is 0
-    return {"current": _t(fs.arms[idx]), "noisy_future": _t(fs.noisy_arms[fut]),
-            "target": _t(fs.arms[frames] - noisy)}
+    scale, own, wrist = (_frame_uniform(idx, salt) for salt in (1, 2, 3))
+    lo, hi = C.ANET_NOISE_SCALE
+    scale = (lo + (hi - lo) * scale)[:, None, None, None]
+    wrist = wrist < C.ANET_WRIST_SHARE if fs.noisy_arms_wrist is not None else wrist < 0
+
+    def noisy(at: np.ndarray) -> np.ndarray:  # (B, K) frame indices -> (B, K, 4, 6)
+        joint = fs.noisy_arms[at] - fs.arms[at]
+        if fs.noisy_arms_wrist is not None:
+            joint = np.where(wrist[:, None, None, None], fs.noisy_arms_wrist[at] - fs.arms[at],
+                             joint)
+        return (fs.arms[at] + scale * joint).astype(np.float32)
+
+    inputs = noisy(frames)
+    current = fs.arms[idx] + own[:, None, None] * (inputs[:, 0] - fs.arms[idx])
+    inputs[:, 0] = current
+    return {"current": _t(current.astype(np.float32)), "noisy_future": _t(noisy(fut)),
+            "target": _t(fs.arms[frames] - inputs)}
+
+
+def _frame_uniform(idx: np.ndarray, salt: int) -> np.ndarray:
+    """A uniform number in [0, 1) per frame index ``(B,)`` (splitmix64 of index and salt)."""
+    with np.errstate(over="ignore"):  # uint64 arithmetic wraps by design
+        x = idx.astype(np.uint64) + np.uint64(salt) * np.uint64(0x9E3779B97F4A7C15)
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        x = x ^ (x >> np.uint64(31))
+    return (x >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
 class VertexFn:
@@ -424,9 +488,9 @@ def _subset(n: int, cap: int, rng: np.random.Generator) -> np.ndarray:
 
 def _anet_stage(model: ANet, data: dict, hp: dict) -> Stage:
     cfg, lc = model.cfg, LossConfig()
+    caps = {"train": hp["anet_max_train_frames"], "val": hp["max_val_frames"]}
     idx = {
-        s: _subset(len(data[s]), hp[f"max_{s}_frames"], np.random.default_rng(hp["seed"]))
-        for s in ("train", "val")
+        s: _subset(len(data[s]), caps[s], np.random.default_rng(hp["seed"])) for s in caps
     }
 
     def batch(split: str, i: np.ndarray) -> dict:
@@ -613,7 +677,9 @@ def _train_stages(
     from ..data.library import ObjectLibrary
 
     partial, configs, fp, shared = files
-    for name in STAGES:
+    # without geometry RNet (it reads proximity) is never run: it keeps its seeded initial
+    # weights in the checkpoint, untrained (Variant docstring)
+    for name in STAGES if variant.geometry else STAGES[:2]:
         st = states.get(name, StageState())
         if name == "anet" and not st.done:
             # rank 0 reads the shared ANet and hands it to the others: one decision

@@ -135,6 +135,7 @@ METHODS: Registry[MethodSpec] = Registry("method")
 METHOD_MODULES: list[str] = [
     "grip_baselines.reference", "grip_bench.grip.method", "grip_baselines.grabnet_method",
     "grip_baselines.toch_method", "grip_baselines.manipnet_method", "grip_baselines.nearest",
+    "grip_baselines.nearest_arm",
 ]
 
 

@@ -92,9 +92,16 @@ def validate_profile(data: dict, schema: dict, where: Path) -> dict:
     return out
 
 
-# Keys added after profiles were in users' hands: a profile without them gets the default's.
-OPTIONAL_KEYS = {"run": ("averaging", "validity_sequences", "viewer_sequences",
-                         "shard_sequences", "train_nproc", "seeds", "capture_noise")}
+# Keys added after profiles were in users' hands: a profile without them gets the default's
+# value (or, for OFF_WHEN_ABSENT, its off value).
+OPTIONAL_KEYS = {"grip": ("anet_max_train_frames",),
+                 "run": ("averaging", "validity_sequences", "viewer_sequences",
+                         "shard_sequences", "train_nproc", "seeds", "capture_noise",
+                         "counterfactual_sources", "counterfactual_methods")}
+# Optional keys whose absence means "off", not the default profile's value: the default
+# profile turns the counterfactual split on (minutes of generation), and a profile written
+# before the key existed keeps planning exactly the units it planned.
+OFF_WHEN_ABSENT = {"run": {"counterfactual_sources": 0}}
 
 
 def load_profile(name: str | Path = "default") -> dict:
@@ -110,7 +117,7 @@ def load_profile(name: str | Path = "default") -> dict:
     for section, values in schema.items():
         data.setdefault(section, dict(values))
         for key in OPTIONAL_KEYS.get(section, ()):
-            data[section].setdefault(key, values[key])
+            data[section].setdefault(key, OFF_WHEN_ABSENT.get(section, {}).get(key, values[key]))
         missing = sorted(set(values) - set(data[section]))
         if missing:
             raise InputError(f"missing key(s) {missing} in [{section}]", path)

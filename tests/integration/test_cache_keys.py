@@ -36,7 +36,7 @@ print(json.dumps({"source": grip_bench.__file__, "units": units}))
 
 GRIP_FAMILY = {"grip", "grip-no-ambient", "grip-no-proximity", "grip-voxel-ambient",
                "grip-no-consist", "grip-output-consist", "grip-no-rnet", "grip-future0",
-               "grip-future3", "grip-future5", "grip-future10"}
+               "grip-future3", "grip-future5", "grip-future10", "grip-blind"}
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ METHOD_IDS = {"grip", "grip-no-ambient", "grip-no-proximity", "grip-no-consist",
               "grip-output-consist", "grip-voxel-ambient", "grip-no-rnet", "grip-future0",
               "grip-future3", "grip-future5", "grip-future10", "grabnet", "grabnet-smplx",
               "manipnet", "toch", "gt", "flat-input", "mean-pose", "nearest-neighbour",
-              "perturbed-input"}
+              "perturbed-input", "grip-blind", "nearest-arm"}
 PERTURBATIONS = {"none", "T0.01", "T0.02", "R0.3", "R0.5"}
 
 
@@ -43,7 +43,8 @@ def test_table_shapes_match_the_paper():
     t2 = TABLES.get("table2_ablation")
     assert [r.filters["method"] for r in t2.rows] == [
         "grip-no-ambient", "grip-no-proximity", "grip-no-consist", "grip-output-consist",
-        "grip-voxel-ambient", "grip-no-rnet", "grip"]
+        "grip-voxel-ambient", "grip-no-rnet", "grip", "grip-blind", "nearest-arm"]
+    assert [r.reference for r in t2.rows] == [False] * 7 + [True] * 2  # the probes (issue #16)
     assert [(c.filters["metric"], c.filters["hand"]) for c in t2.columns][:6] == [
         ("mpvpe", "right"), ("mpvpe", "left"), ("mpjpe", "right"), ("mpjpe", "left"),
         ("cc", "right"), ("cc", "left")]

