@@ -13,7 +13,8 @@ TINY_RUN = {
     "per_frame": False, "device": "cpu", "bootstrap_seed": 0, "bootstrap_n": 200,
     "runtime_sequences": 1, "runtime_repeats": 1, "physics_frames": 4, "iv_frames": 0,
     "figure_methods": [], "validity_sequences": 0, "viewer_sequences": 0,
-    "seeds": [], "capture_noise": "none",
+    "seeds": [], "capture_noise": "none", "counterfactual_sources": 0,
+    "counterfactual_methods": [],
 }
 
 

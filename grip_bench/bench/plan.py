@@ -27,7 +27,8 @@ if TYPE_CHECKING:
     from ..metrics.evaluate import EvalOptions
     from ..report.tables import ColumnSpec
 
-STAGES = ("data", "perturb", "train", "predict", "evaluate", "runtime", "validity", "report")
+STAGES = ("data", "counterfactual", "perturb", "train", "predict", "evaluate", "sensitivity",
+          "runtime", "validity", "report")
 _PERTURBATION_RE = re.compile(r"^(T|R)(\d+(?:\.\d+)?)$")
 
 # [run] keys, as in ``grip_bench/profiles/default.toml`` (the schema every profile follows;
@@ -79,6 +80,7 @@ def run_settings(profile: dict, where: str | os.PathLike) -> dict:
         raise InputError("[run] averaging must be 'sequence' or 'pooled'",
                          where=f"{where}: run.averaging")
     run_seeds(s, where)  # optional key: checked here, used by the planner
+    counterfactual_settings(s, where)  # optional keys: checked here, used by the planner
     from ..data.capture_noise import MODELS
 
     noise = s.get("capture_noise", "none")  # optional key
@@ -108,6 +110,24 @@ def run_seeds(settings: dict, where: str | os.PathLike = "profile") -> tuple[int
         raise InputError(f"[run] seeds {list(seeds)} must include seed = {seed} (the seed "
                          "whose rows keep the plain method names)", where=f"{where}: run.seeds")
     return (int(seed), *(int(x) for x in seeds if x != seed))
+
+
+def counterfactual_settings(settings: dict,
+                            where: str | os.PathLike = "profile") -> tuple[int, tuple[str, ...]]:
+    """``([run] counterfactual_sources, [run] counterfactual_methods)``, checked: source
+    episodes of the counterfactual geometry split (0, or absent: off) and the methods
+    scored on it (``[]``: :func:`counterfactual_methods` picks them)."""
+    n = settings.get("counterfactual_sources", 0)
+    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+        raise InputError(f"[run] counterfactual_sources must be an integer >= 0 (0 = off): {n!r}",
+                         where=f"{where}: run.counterfactual_sources")
+    names = settings.get("counterfactual_methods", [])
+    bad = [names] if not isinstance(names, list | tuple) else \
+        [m for m in names if not isinstance(m, str) or not m]
+    if bad:
+        raise InputError(f"[run] counterfactual_methods must be method names: {bad[0]!r}",
+                         where=f"{where}: run.counterfactual_methods")
+    return int(n), tuple(dict.fromkeys(names))
 
 
 # --- configuration --------------------------------------------------------------------------
@@ -254,7 +274,8 @@ def _check_device(device: str) -> None:
 # The module holding each unit kind's work; its import closure is the kind's code.
 STAGE_MODULES = {"dataset": "data", "perturbed": "perturb", "checkpoint": "train",
                  "prediction": "predict", "metrics": "evaluate", "runtime": "runtime",
-                 "validity": "validity"}
+                 "validity": "validity", "counterfactual": "counterfactual",
+                 "sensitivity": "sensitivity"}
 
 
 # What a shard unit runs besides its kind's stage module ([run] shard_sequences > 0).
@@ -276,7 +297,7 @@ def stage_code(kind: str, *modules: str) -> str:
     return CodeIndex.installed().digest(entries)
 
 
-_METRIC_KINDS = ("metrics", "validity")  # unit kinds whose work computes metrics
+_METRIC_KINDS = ("metrics", "validity", "sensitivity")  # unit kinds whose work computes metrics
 
 
 @dataclass(frozen=True)
@@ -628,6 +649,110 @@ def _validity_unit(cfg: RunConfig, data: Unit, units: list[Unit]) -> None:
     _add(units, "validity", f"metric validity on {n} sequence(s)", inputs, [data.key])
 
 
+# --- the counterfactual geometry split ([run] counterfactual_sources > 0) --------------------
+# Learned methods of the leaderboard scored on the split besides Table 2's rows (its GRIP
+# variants and probes) when [run] counterfactual_methods is empty (docs/counterfactual.md).
+CF_LEADERBOARD_METHODS = ("grip", "grip-blind", "nearest-neighbour", "nearest-arm",
+                          "grabnet-smplx", "manipnet")
+CF_TABLE = "table2_ablation"  # whose methods are scored by default (with the list above)
+CF_PREDICTION_SET = "counterfactual"  # ``test_set`` of the split's prediction units
+
+
+def counterfactual_methods(cfg: RunConfig) -> tuple[list[str], list[str]]:
+    """``(methods, notes)``: the methods scored on the counterfactual split, in the run's
+    method order. ``[run] counterfactual_methods`` when given (each must be one of the run's
+    methods, predict the clean split and not be named like a reference row of the table);
+    else the methods of Table 2 (``CF_TABLE``) and ``CF_LEADERBOARD_METHODS`` that this run
+    has, with a note naming those it has not."""
+    from ..methods.api import METHODS
+    from ..report.sensitivity import REFERENCES
+    from ..report.tables import TABLES
+
+    _, named = counterfactual_settings(cfg.settings)
+    where = f"{cfg.profile_file}: run.counterfactual_methods"
+    if named:
+        for name in named:
+            METHODS.get(name)  # InputError listing the known methods
+            if name in REFERENCES:
+                raise InputError(f"{name!r} is a reference row of the geometry-sensitivity "
+                                 "table, scored from the data itself; name methods", where)
+            if name not in cfg.methods:
+                run = ", ".join(cfg.methods)
+                raise InputError(f"{name!r} is not one of this run's methods ({run}): add it "
+                                 "to [run] methods or extra_methods", where)
+            if not METHODS.get(name).clean:
+                raise InputError(f"{name!r} does not predict the clean test split", where)
+        return list(named), []
+    wanted = set(CF_LEADERBOARD_METHODS)
+    if CF_TABLE in TABLES:
+        wanted |= set(TABLES.get(CF_TABLE).methods())
+    wanted -= set(REFERENCES)
+    chosen = [m for m in cfg.methods if m in wanted and METHODS.get(m).clean]
+    missing = sorted(wanted - set(chosen))
+    notes = [f"counterfactual: not in this run, not scored: {', '.join(missing)}"] \
+        if missing else []
+    return chosen, notes
+
+
+def _counterfactual_units(cfg: RunConfig, data: Unit, ckpts: Checkpoints,
+                          units: list[Unit]) -> list[str]:
+    """With ``[run] counterfactual_sources`` > 0 on generated data: the split's dataset unit
+    (kind ``counterfactual``), a prediction unit per scored method (the run's first-seed
+    checkpoint on the split; no metrics unit, so nothing reaches ``results.csv``) and one
+    ``sensitivity`` unit scoring them all. Returns notes for the run's log; on imported
+    data, or when none of the run's methods is scored, the split is skipped with a note.
+
+    Nothing here enters another unit's inputs: with the key at 0 (or absent) every key is
+    what it was before these keys existed."""
+    from ..methods.api import METHODS
+
+    n, _ = counterfactual_settings(cfg.settings)
+    if n == 0:
+        return []
+    s = cfg.settings
+    if cfg.data is not None or s["data"] != "synth":
+        return [f"counterfactual: counterfactual_sources = {n} skipped: the split is made by "
+                "the SynthGRAB generator, and this run's data is imported (real GRAB or "
+                "--data), so there is no generator to make pairs of its test objects"]
+    methods, notes = counterfactual_methods(cfg)
+    if not methods:
+        return [*notes, f"counterfactual: counterfactual_sources = {n} skipped: none of this "
+                "run's methods is scored on the split"]
+    if s.get("capture_noise", "none") != "none":
+        notes.append("counterfactual: the split is generated without capture noise (a pair's "
+                     "members must differ in the object's shape only)")
+    inputs = {"source": "synthgrab-counterfactual", "profile": s["synth_profile"],
+              "seed": s["data_seed"], "sources": n,
+              "constants": {"variants": C.CF_VARIANTS, "intents": C.CF_INTENTS,
+                            "twin_tries": C.CF_TWIN_TRIES, "min_change": C.CF_MIN_CHANGE,
+                            "split": C.CF_SPLIT},
+              "code": stage_code("counterfactual")}
+    cf = _add(units, "counterfactual",
+              f"counterfactual split: synthgrab profile={s['synth_profile']} "
+              f"seed={s['data_seed']} sources={n}", inputs)
+    preds: dict[str, str] = {}
+    for name in methods:
+        spec, ckpt = METHODS.get(name), ckpts[(name, cfg.seed)]
+        inputs = {**_method_inputs(spec, "prediction"), "checkpoint": ckpt.key if ckpt else None,
+                  "input": cf.key, "split": MAIN_SPLIT, "seed": cfg.seed,
+                  "device": cfg.device if spec.trainable else None,
+                  "train_data": data.key}  # PredictContext.data_dir: retrieval reads it
+        deps = [cf.key, data.key] + ([ckpt.key] if ckpt else [])
+        # perturbation "none": a clean test set (PredictContext.refine stays False)
+        pred = _add(units, "prediction", f"predict {name} @ {CF_PREDICTION_SET}", inputs,
+                    deps, method=name, input=cf.key, checkpoint=ckpt.key if ckpt else None,
+                    perturbation=CLEAN, test_set=CF_PREDICTION_SET)
+        preds[name] = pred.key
+    from ..report.sensitivity import TABLE_VERSION
+
+    inputs = {"data": cf.key, "predictions": preds, "model_path": cfg.model_path,
+              "min_gt_rms": C.CF_MIN_GT_RMS, "table_version": TABLE_VERSION,
+              "code": stage_code("sensitivity")}
+    _add(units, "sensitivity", f"geometry sensitivity of {len(preds)} method(s)", inputs,
+         [cf.key, *preds.values()], data=cf.key, predictions=preds)
+    return notes
+
+
 def dataset_name(cfg: RunConfig) -> str:
     """The ``dataset`` column: [run] dataset, else SynthGRAB or GRAB by the data's origin."""
     if cfg.settings["dataset"]:
@@ -651,15 +776,18 @@ def build_plan(cfg: RunConfig, cache: Cache) -> Plan:
     shards = sequence_shards(cfg, data, cache)
     if shards is not None:
         _predict_eval_units(cfg, units, data, sets, ckpts, dataset, shards)
+    cf_notes = _counterfactual_units(cfg, data, ckpts, units)
     _runtime_units(cfg, data, ckpts, units)
     _validity_unit(cfg, data, units)
-    order = {k: i for i, k in enumerate(("dataset", "perturbed", "checkpoint", "prediction",
-                                          "metrics", "runtime", "validity"))}
+    order = {k: i for i, k in enumerate(("dataset", "counterfactual", "perturbed", "checkpoint",
+                                          "prediction", "metrics", "sensitivity", "runtime",
+                                          "validity"))}
     units.sort(key=lambda u: order[u.kind])  # stable: plan order within a kind
     cached = {u.key: cache.has(u.key) for u in units}
     notes = [] if shards is not None else [
         f"note: shard_sequences = {shard_sequences(cfg)}: the prediction and metrics units "
         "are planned once the dataset unit exists (their shards list its test sequences)"]
+    notes += cf_notes
     return Plan(units, cached, data.key, dataset, notes, deferred=shards is None)
 
 

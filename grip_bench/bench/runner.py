@@ -2,8 +2,8 @@
 
 Stages (each a small function; units run in a deterministic order)::
 
-    data -> perturbed test sets -> train -> predict -> evaluate -> runtime -> validity
-    -> report
+    data -> counterfactual split -> perturbed test sets -> train -> predict -> evaluate
+    -> sensitivity -> runtime -> validity -> report
 
 A **profile** (``smoke``, ``default``, ``paper`` or any ``.toml`` path, loaded by
 ``grip_bench.profiles.load_profile``) is data, not a code branch: its sections set data
@@ -27,6 +27,9 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
         metrics      results.csv [frames.csv] evaluation.json contact_stats.npz
         runtime      runtime.json (timed predictions, rows of runtime.csv)
         validity     validity.csv (metric validity: [run] validity_sequences > 0)
+        counterfactual  data/ (the counterfactual geometry split: pairs.json, GRAB layout;
+                     [run] counterfactual_sources > 0, generated data only)
+        sensitivity  sensitivity_pairs.csv (every method's scores on every pair)
     OUT/cache/features/<code>/     GRIP's sensor features per data hash, shared by its variants
     OUT/results.csv                tidy results of every metric unit (docs/contract.md, "Results")
     OUT/frames.csv                 per-frame values (when [run] per_frame = true)
@@ -41,6 +44,9 @@ Layout of ``OUT`` (default ``runs/<profile>``)::
     OUT/validity.csv               the validity unit's responses ([run] validity_sequences > 0)
     OUT/validity.json              which unit they came from: its key and inputs
     OUT/tables/metric_validity.{md,csv}  the same as a table, each claim PASS / FAIL
+    OUT/sensitivity_pairs.csv      the sensitivity unit's per-pair scores (SI units)
+    OUT/tables/geometry_sensitivity.{md,csv,html}  methods on the counterfactual split, with
+                                   its sanity gate (also in leaderboard.html and run.log)
     OUT/manifest.json              versions, git revision, profile, config, seeds, data hash,
                                    wall time per stage (docs/contract.md, "Results")
     OUT/viewer/*.html, index.json  3D pages of each method's worst / median test sequence
@@ -86,14 +92,23 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..report.write import DEPTH_DATA, DEPTH_FORMAT, HEATMAP_DATA, figure_methods, write_report
+from ..report.write import (
+    DEPTH_DATA,
+    DEPTH_FORMAT,
+    HEATMAP_DATA,
+    SENSITIVITY_PAIRS,
+    figure_methods,
+    write_report,
+)
 from ..results.layout import CLEAN, MAIN_SPLIT
 from .cache import Cache
 from .execute import RunLog, RunState, run_stage
 from .plan import RunConfig, Unit, build_plan
+from .stages.counterfactual import make_counterfactual
 from .stages.data import make_dataset
 from .stages.perturb import make_perturbed
 from .stages.runtime import time_method
+from .stages.sensitivity import PAIRS_FILE, score_sensitivity
 from .stages.shards import evaluate_unit, predict_unit
 from .stages.train import train_method
 from .stages.validity import VALIDITY_FILE, measure_validity
@@ -217,6 +232,42 @@ def assemble_validity(st: RunState) -> None:
                       json.dumps(jsonable(record), sort_keys=True, indent=1) + "\n")
 
 
+def assemble_sensitivity(st: RunState) -> None:
+    """``OUT/sensitivity_pairs.csv`` from the sensitivity unit (``[run]
+    counterfactual_sources``), which ``write_report`` draws the geometry-sensitivity table
+    from; without one the file of an earlier run is removed (and with it the table)."""
+    from ..core.io import atomic_write_bytes
+
+    units = st.plan.of("sensitivity")
+    if not units:
+        if (st.cfg.out / SENSITIVITY_PAIRS).exists():
+            (st.cfg.out / SENSITIVITY_PAIRS).unlink()
+        return
+    atomic_write_bytes(st.cfg.out / SENSITIVITY_PAIRS,
+                       (st.unit_dir(units[0].key) / PAIRS_FILE).read_bytes())
+
+
+def log_sensitivity_gate(st: RunState) -> None:
+    """The geometry-sensitivity table's sanity gate in the run's log (and on stderr)."""
+    from ..report.sensitivity import REFERENCES, read_pairs_csv, sanity_gate
+
+    path = st.cfg.out / SENSITIVITY_PAIRS
+    if not st.plan.of("sensitivity") or not path.is_file():
+        return
+    rows = read_pairs_csv(path)
+    if not len(rows):
+        st.log("geometry sensitivity: the counterfactual split holds no pairs (every twin "
+               "was rejected); no table")
+        return
+    gate = sanity_gate(rows)
+    st.log(f"geometry sensitivity: {rows['pair'].nunique()} pairs, "
+           f"{rows.loc[~rows['method'].isin(REFERENCES), 'method'].nunique()} "
+           f"method(s); sanity gate {'PASS' if all(ok for _, ok, _ in gate) else 'FAIL'} "
+           f"({st.cfg.out / 'tables' / 'geometry_sensitivity.md'})")
+    for name, ok, got in gate:
+        st.log(f"  {'PASS' if ok else 'FAIL'}: {name} ({got})")
+
+
 def assemble_viewer(st: RunState) -> None:
     """``OUT/viewer/``: 3D pages of each leaderboard method's worst, median, ... clean test
     sequence (``[run] viewer_sequences``, default 2; 0 removes earlier pages) and their
@@ -269,10 +320,12 @@ def stage_report(st: RunState) -> None:
     assemble_results(st)
     assemble_figure_data(st)
     assemble_validity(st)
+    assemble_sensitivity(st)
     assemble_viewer(st)
     written = write_report(st.cfg.out, st.cfg.report_options())
     pngs = [p.name for p in written if p.suffix == ".png"]
     st.log(f"figures: {', '.join(pngs)}" if pngs else "figures: none drawn (no figure data)")
+    log_sensitivity_gate(st)
     st.stage_times["report"] = round(time.perf_counter() - t0, 3)
 
 
@@ -307,7 +360,7 @@ def summary_lines(st: RunState) -> list[str]:
     from ..results.manifest import peak_memory_mib
 
     lines = [st.cache.summary_line()]
-    lines += [f"  {name:<9} {secs:8.2f} s" for name, secs in st.stage_times.items()]
+    lines += [f"  {name:<14} {secs:8.2f} s" for name, secs in st.stage_times.items()]
     mem = peak_memory_mib()
     if mem:
         lines.append(f"  peak memory: {mem['self']:.0f} MiB (run), {mem['children']:.0f} MiB "
@@ -339,10 +392,14 @@ def dataset_unit(st: RunState, unit: Unit, tmp: Path) -> dict:
     return make_noisy_dataset(st, unit, tmp)
 
 
-STAGE_FUNCTIONS = (("data", "dataset", dataset_unit), ("perturb", "perturbed", make_perturbed),
+STAGE_FUNCTIONS = (("data", "dataset", dataset_unit),
+                   ("counterfactual", "counterfactual", make_counterfactual),
+                   ("perturb", "perturbed", make_perturbed),
                    ("train", "checkpoint", partial(with_unit_seed, train_method)),
                    ("predict", "prediction", partial(with_unit_seed, predict_unit)),
-                   ("evaluate", "metrics", evaluate_unit), ("runtime", "runtime", time_method),
+                   ("evaluate", "metrics", evaluate_unit),
+                   ("sensitivity", "sensitivity", score_sensitivity),
+                   ("runtime", "runtime", time_method),
                    ("validity", "validity", measure_validity))
 
 

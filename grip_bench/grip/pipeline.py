@@ -115,9 +115,9 @@ def denoise_arms_many(anet: ANet, noisy: list[np.ndarray], online: bool = False,
     its start within a few frames (the default profile's ANet on 12 GRAB-T 0.01 test
     sequences: largest 6D difference 3e-4 after 8 warm-up frames, against 0.02 of noise), so
     this nearly equals the one long recursion while running ``T / chunk`` times fewer
-    sequential steps: a wide ANet is bound by its
-    weights' memory traffic, once per step. ``chunk=0`` and online mode run the plain
-    recursion (online, each frame only sees the past).
+    sequential steps: a wide ANet is bound by its weights' memory traffic, once per step.
+    ``chunk=0`` and online mode run the plain recursion (online, each frame only sees the
+    past).
     """
     if online or chunk <= 0:
         return _recursion(anet, noisy, online)

@@ -2,13 +2,15 @@
 
 ``grip-bench report OUT`` and the end of ``grip-bench run`` call :func:`write_report`, so
 both write the same bytes. Reads ``OUT/results.csv``, ``OUT/runtime.csv``, the figure data
-under ``OUT/figures/`` and the report options saved in ``OUT/manifest.json``.
+under ``OUT/figures/``, ``OUT/sensitivity_pairs.csv`` (the counterfactual split's pairs,
+when the run scored them) and the report options saved in ``OUT/manifest.json``.
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -17,6 +19,9 @@ from ..core import constants as C
 from ..core.errors import InputError
 from ..results.layout import CLEAN, MAIN_SPLIT
 
+if TYPE_CHECKING:
+    from .tables import TableData
+
 # figure data (written by ``run`` from the metric units, read by ``write_figures``)
 HEATMAP_DATA = "heatmap_data.npz"
 DEPTH_DATA = "penetration_depths.npz"
@@ -24,6 +29,11 @@ DEPTH_FORMAT = 1
 HEATMAP_PNG = "contact_heatmaps.png"
 CDF_PNG = "penetration_cdf.png"
 BAR_METRICS = ("mpvpe", "iv")  # per_object_<metric>.png
+# the counterfactual split's per-pair scores (written by ``run``, docs/counterfactual.md) and
+# the table drawn from them in OUT/tables/
+SENSITIVITY_PAIRS = "sensitivity_pairs.csv"
+SENSITIVITY_TABLE = "geometry_sensitivity"
+SENSITIVITY_FORMATS = ("md", "csv", "html")
 
 
 def figure_methods(settings: dict) -> list[str]:
@@ -91,10 +101,88 @@ def write_figures(out: Path, results: pd.DataFrame, options: dict) -> list[Path]
     return drawn
 
 
+def sensitivity_table_data(summary: pd.DataFrame, gate: list[tuple[str, bool, str]],
+                           n_pairs: int) -> TableData:
+    """The geometry-sensitivity table (``report.sensitivity.summarize``) as a
+    :class:`~report.tables.TableData` for the HTML pages: methods, then the reference rows;
+    the best method per column in bold (references excluded); the gate in the notes."""
+    from ..results.stats import CI
+    from .sensitivity import TABLE_VERSION
+    from .tables import Cell, Column, Row, TableData
+
+    spec = (("Change reproduced", "", "reproduced", "%", True, 1),
+            ("Aperture-change error", "", "aperture_error", "mm", False, 2),
+            ("MPVPE", "A", "mpvpe_a", "mm", False, 2), ("MPVPE", "B", "mpvpe_b", "mm", False, 2))
+    methods = summary[~summary["reference"].astype(bool)]
+    best = {}
+    for _, _, col, _, hib, _ in spec:
+        v = methods[col].to_numpy(float)
+        best[col] = (np.nanmax(v) if hib else np.nanmin(v)) if np.isfinite(v).any() else None
+    rows = []
+    for _, r in summary.iterrows():
+        ref = bool(r["reference"])
+        cells = tuple(Cell(ci=CI(float(r[col]), float(r[col + "_lo"]), float(r[col + "_hi"]),
+                                 int(r["pairs"]), 0),
+                           unit=unit, higher_is_better=hib, decimals=dec,
+                           best=not ref and best[col] is not None and r[col] == best[col])
+                      for _, _, col, unit, hib, dec in spec)
+        label = r["method"] + (f" ({r['pairs']}/{r['pairs_total']} pairs)"
+                               if r["pairs"] != r["pairs_total"] else "")
+        rows.append(Row(label=label, cells=cells, reference=ref,
+                        group="Reference rows (sanity gate)" if ref else "Methods"))
+    notes = ("Pairs share body, wrist and object motion; only the object's shape differs. "
+             "Scored on the grasping hand, on frames held in both members; mean over pairs, "
+             "95 % bootstrap interval over pairs stratified by object family.",
+             "Change reproduced: 1 - |d_m - d_gt| / |d_gt| (clipped to [0, 1]), d = hands_B "
+             "- hands_A; 0 for a method blind to the object (docs/counterfactual.md).",
+             *(f"Sanity gate: {'PASS' if ok else 'FAIL'}: {name} ({got})"
+               for name, ok, got in gate))
+    columns = tuple(Column(group, label, unit, hib) for group, label, _, unit, hib, _ in spec)
+    return TableData(id=SENSITIVITY_TABLE,
+                     title=f"Geometry sensitivity (counterfactual split, {n_pairs} pairs)",
+                     version=TABLE_VERSION, row_header="Method", columns=columns,
+                     rows=tuple(rows), notes=notes,
+                     description="each method on pairs of test sequences whose objects "
+                                 "differ only in shape")
+
+
+def write_sensitivity_report(out: str | os.PathLike) -> tuple[list[Path], TableData | None]:
+    """``OUT/tables/geometry_sensitivity.{md,csv,html}`` from ``OUT/sensitivity_pairs.csv``
+    (``report.sensitivity``; the sanity gate in each) and the table for the leaderboard page.
+    Without that file (no counterfactual split in the run) the tables of an earlier run are
+    removed; a split without pairs gets a Markdown note only."""
+    from ..core.io import atomic_write_text
+    from .render import to_html
+    from .sensitivity import read_pairs_csv, sanity_gate, summarize, write_sensitivity
+
+    out = Path(out)
+    tables = out / "tables"
+    stale = {tables / f"{SENSITIVITY_TABLE}.{fmt}" for fmt in SENSITIVITY_FORMATS}
+    rows = read_pairs_csv(out / SENSITIVITY_PAIRS) if (out / SENSITIVITY_PAIRS).is_file() \
+        else None
+    written, data = [], None
+    if rows is not None and not len(rows):
+        written = [atomic_write_text(tables / f"{SENSITIVITY_TABLE}.md",
+                                     "## Geometry sensitivity (counterfactual split, 0 pairs)\n\n"
+                                     "The split holds no pairs (every twin was rejected): "
+                                     "nothing to score.\n")]
+    elif rows is not None:
+        written, _ = write_sensitivity(out, rows, tables, pairs_file=False)
+        data = sensitivity_table_data(summarize(rows), sanity_gate(rows),
+                                      int(rows["pair"].nunique()))
+        written.append(atomic_write_text(tables / f"{SENSITIVITY_TABLE}.html", to_html(data)))
+    for path in sorted(stale - set(written)):
+        if path.exists():
+            path.unlink()
+    return written, data
+
+
 def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
-                       figures: list[Path], links: dict | None = None) -> list[Path]:
+                       figures: list[Path], links: dict | None = None,
+                       extra_tables: tuple[TableData, ...] = ()) -> list[Path]:
     """``leaderboard.{csv,md,html}`` of the clean main split (one set per dataset); the HTML
-    links each method to its viewer pages (``links``, :func:`report.viewer.viewer_links`).
+    links each method to its viewer pages (``links``, :func:`report.viewer.viewer_links`)
+    and shows ``extra_tables`` below the leaderboard (the geometry-sensitivity table).
     Rows of further training seeds (``<method>@seed<N>``) are left out: the leaderboard is
     the first seed's, as in a single-seed run."""
     from ..methods.api import predicted_hands, variants
@@ -122,7 +210,7 @@ def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
                     write_leaderboard_md(lb, out / f"{stem}.md")]
         if not lb.empty:
             written.append(write_leaderboard_html(lb, out / f"{stem}.html", figures=figures,
-                                                  links=links))
+                                                  links=links, extra_tables=extra_tables))
     return written
 
 
@@ -145,7 +233,10 @@ def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Pa
 
     Reads only files in ``OUT``: ``grip-bench report OUT`` and the end of ``run`` call this
     same function, so they write the same bytes. When ``OUT/viewer/index.json`` exists (run's
-    ``[run] viewer_sequences``), HTML rows link each method to its viewer pages.
+    ``[run] viewer_sequences``), HTML rows link each method to its viewer pages. When
+    ``OUT/sensitivity_pairs.csv`` exists (``[run] counterfactual_sources``), the
+    geometry-sensitivity table is written to ``OUT/tables/`` and shown in
+    ``leaderboard.html``.
     """
     from ..results.schema import read_results
     from .render import render_all
@@ -163,5 +254,8 @@ def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Pa
     validity = write_validity(out)  # when the run measured metric validity
     figures = write_figures(out, results, options) + [p for p in validity if p.suffix == ".png"]
     written += figures + [p for p in validity if p.suffix != ".png"]
-    written += write_leaderboards(out, results, options, figures, links)
+    sensitivity, table = write_sensitivity_report(out)  # when the run scored the split
+    written += sensitivity
+    written += write_leaderboards(out, results, options, figures, links,
+                                  extra_tables=(table,) if table is not None else ())
     return written
