@@ -421,6 +421,9 @@ def test_unknown_profile_is_an_input_error(tmp_path, capsys):
 
 
 # --- the smoke profile -----------------------------------------------------------------------
+# 246 s idle (2 cores): the default suite was 12 min with it; the tiny-profile run tests above
+# keep a whole run (plan, units, report, resume) in the default suite
+@pytest.mark.slow
 def test_smoke_profile_end_to_end(tmp_path, capsys):
     """The real thing at smoke size: SynthGRAB generation, GRIP training, every table.
 
