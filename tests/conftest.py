@@ -33,6 +33,30 @@ def hand():
     return ProceduralHand("right")
 
 
+@pytest.fixture(scope="session")
+def tiny_grip_root(tmp_path_factory):
+    """The tiny GRIP dataset of ``tests.grip_fixtures`` (16 frames a sequence); read only."""
+    from tests.grip_fixtures import write_grip_dataset
+
+    return write_grip_dataset(tmp_path_factory.mktemp("gripdata"), T=16)
+
+
+@pytest.fixture(scope="session")
+def tiny_grip_checkpoint(tiny_grip_root, tmp_path_factory):
+    """GRIP trained once per session on :func:`tiny_grip_root` with ``tiny_profile()``
+    (the pipeline and the stream tests read the same checkpoint)."""
+    import torch
+
+    from grip_bench.grip.method import GripMethod
+    from grip_bench.methods.api import TrainContext
+    from tests.grip_fixtures import tiny_profile
+
+    out = tmp_path_factory.mktemp("ckpt") / "grip.pt"
+    torch.set_num_threads(1)
+    return GripMethod().train(tiny_grip_root, out,
+                              TrainContext(profile=tiny_profile(), progress=False))
+
+
 def pytest_benchmark_update_machine_info(config, machine_info):
     """Every benchmark table records the processor's model and the flags that decide GEMM
     speed (``grip_bench.core.cpu``), beside pytest-benchmark's own cpu fields."""

@@ -12,7 +12,7 @@ from grip_bench.grip.data import build_split
 from grip_bench.grip.method import VARIANTS, GripMethod
 from grip_bench.methods.api import METHODS, PredictContext, TrainContext, load_all
 from grip_bench.profiles import load_profile, validate_profile
-from tests.grip_fixtures import tiny_profile, write_grip_dataset
+from tests.grip_fixtures import tiny_profile
 
 
 @pytest.fixture(autouse=True)
@@ -21,15 +21,13 @@ def _threads():
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory):
-    return write_grip_dataset(tmp_path_factory.mktemp("gripdata"), T=16)
+def root(tiny_grip_root):
+    return tiny_grip_root
 
 
 @pytest.fixture(scope="module")
-def trained(root, tmp_path_factory):
-    out = tmp_path_factory.mktemp("ckpt") / "grip.pt"
-    torch.set_num_threads(1)
-    return GripMethod().train(root, out, TrainContext(profile=tiny_profile(), progress=False))
+def trained(tiny_grip_checkpoint):
+    return tiny_grip_checkpoint
 
 
 def _weights(path):

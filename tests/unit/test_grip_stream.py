@@ -18,8 +18,6 @@ from grip_bench.grip.frozen import (
 from grip_bench.grip.method import GripMethod
 from grip_bench.grip.pipeline import GripPipeline, Options
 from grip_bench.grip.stream import GripStream, frame_of, parse_frame
-from grip_bench.methods.api import TrainContext
-from tests.grip_fixtures import tiny_profile, write_grip_dataset
 
 
 @pytest.fixture(autouse=True)
@@ -28,17 +26,14 @@ def _threads():
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory):
-    return write_grip_dataset(tmp_path_factory.mktemp("gripdata"), T=16)
+def root(tiny_grip_root):
+    return tiny_grip_root
 
 
 @pytest.fixture(scope="module")
-def method(root, tmp_path_factory):
-    out = tmp_path_factory.mktemp("ckpt") / "grip.pt"
-    torch.set_num_threads(1)
-    GripMethod().train(root, out, TrainContext(profile=tiny_profile(), progress=False))
+def method(tiny_grip_checkpoint):
     m = GripMethod()
-    m.load(out)
+    m.load(tiny_grip_checkpoint)
     return m
 
 
