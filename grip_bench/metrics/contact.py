@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import constants as C
+from ..core.vec import norm3
 
 
 def in_contact(signed_dist: np.ndarray, threshold: float = C.CONTACT_THRESHOLD) -> np.ndarray:
@@ -116,7 +117,7 @@ def contact_consistency(
     pred_vertices, gt_vertices: (T, V, 3) m; gt_signed_dist: (T, V) m -> (T,) m.
     Frames with no ground-truth contact vertex are NaN (not 0: nothing was measured there).
     """
-    err = np.linalg.norm(np.asarray(pred_vertices) - np.asarray(gt_vertices), axis=-1)
+    err = norm3(np.asarray(pred_vertices) - np.asarray(gt_vertices))
     sel = in_contact(gt_signed_dist, threshold)
     n = sel.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -153,7 +154,7 @@ def contact_drift(
         return out
     touch = in_contact(gt_signed_dist, threshold)
     sel = touch[1:] & touch[:-1] & (mask[1:] & mask[:-1])[:, None]  # (T-1, V)
-    dev = np.linalg.norm((p[1:] - p[:-1]) - (g[1:] - g[:-1]), axis=-1)
+    dev = norm3((p[1:] - p[:-1]) - (g[1:] - g[:-1]))
     n = sel.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         per = np.where(sel, dev, 0.0).sum(axis=-1) / n

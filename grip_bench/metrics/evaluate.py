@@ -54,7 +54,7 @@ from .contact import (
     strict_contact,
 )
 from .intersection import FailureCounter, intersection_volume_batch
-from .jitter import acceleration, acceleration_error, jitter
+from .jitter import acceleration_error, acceleration_magnitudes
 from .penetration import penetration_depth_from_sdf
 from .pose import mpjpe, mpvpe
 from .registry import METRICS, metric
@@ -437,19 +437,14 @@ def m_sim_disp_hold(pair: SequencePair, side: str) -> Measured:
 
 
 # ------------------------------------------------------------------ motion
-def _frame_jitter(verts: np.ndarray, fps: float) -> np.ndarray:
-    """Mean vertex acceleration magnitude (T-2,) m/s^2 at frames 1..T-2."""
-    if len(verts) < 3:
-        return np.zeros(0)
-    return np.linalg.norm(acceleration(verts, fps), axis=-1).mean(axis=-1)
-
-
 @metric("jitter", "Jitter", "m/s2", 1.0, False, "all", 1,
         "mean acceleration magnitude of hand vertices (second differences at 30 fps)")
 def m_jitter(pair: SequencePair, side: str) -> Measured:
-    v = pair.track("pred", side).verts
-    per = _frame_jitter(v, pair.gt.fps)
-    return Measured(np.arange(1, 1 + len(per)), per, value=jitter(v, pair.gt.fps))
+    # one (T-2, V) magnitude array: its per-frame means and its overall mean (= jitter())
+    mags = acceleration_magnitudes(pair.track("pred", side).verts, pair.gt.fps)
+    if not len(mags):
+        return Measured(np.zeros(0, int), np.zeros(0), value=float("nan"))
+    return Measured(np.arange(1, 1 + len(mags)), mags.mean(axis=-1), value=float(mags.mean()))
 
 
 @metric("accel_err", "Acceleration error", "m/s2", 1.0, False, "all", 1,

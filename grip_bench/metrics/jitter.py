@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import constants as C
+from ..core.vec import norm3
 
 
 def acceleration(vertices: np.ndarray, fps: float = C.FPS) -> np.ndarray:
@@ -16,6 +17,15 @@ def acceleration(vertices: np.ndarray, fps: float = C.FPS) -> np.ndarray:
     return (v[2:] - 2.0 * v[1:-1] + v[:-2]) * fps**2
 
 
+def acceleration_magnitudes(vertices: np.ndarray, fps: float = C.FPS) -> np.ndarray:
+    """Acceleration magnitude of every vertex: (T, V, 3) m -> (T-2, V) m/s^2 (frames 1..T-2;
+    empty when T < 3). Computed once per hand by the jitter metric, which reads both its
+    per-frame means and its overall mean from it."""
+    if np.shape(vertices)[0] < 3:
+        return np.zeros((0, *np.shape(vertices)[1:-1]))
+    return norm3(acceleration(vertices, fps))
+
+
 def jitter(vertices: np.ndarray, fps: float = C.FPS) -> float:
     """Mean acceleration magnitude over frames and vertices of one sequence.
 
@@ -23,7 +33,7 @@ def jitter(vertices: np.ndarray, fps: float = C.FPS) -> float:
     """
     if np.shape(vertices)[0] < 3:
         return float("nan")
-    return float(np.linalg.norm(acceleration(vertices, fps), axis=-1).mean())
+    return float(acceleration_magnitudes(vertices, fps).mean())
 
 
 def jitter_error(pred_vertices: np.ndarray, gt_vertices: np.ndarray, fps: float = C.FPS) -> float:
@@ -43,4 +53,4 @@ def acceleration_error(pred_vertices: np.ndarray, gt_vertices: np.ndarray,
     if np.shape(pred_vertices)[0] < 3:
         return np.zeros(0)
     diff = acceleration(pred_vertices, fps) - acceleration(gt_vertices, fps)
-    return np.linalg.norm(diff, axis=-1).mean(axis=-1)
+    return norm3(diff).mean(axis=-1)

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.vec import norm3
+
 # 21 MANO keypoints: 0 wrist, 1..15 finger joints, 16..20 fingertips. MPJPE uses 1..15 only.
 FINGER_JOINTS = slice(1, 16)
 
@@ -28,7 +30,7 @@ def mean_point_error(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     pred, gt: (T, N, 3) metres -> (T,) metres.
     """
     pred, gt = _check_pair(pred, gt, "points")
-    return np.linalg.norm(pred - gt, axis=-1).mean(axis=-1)
+    return norm3(pred - gt).mean(axis=-1)
 
 
 def mpjpe(pred_joints: np.ndarray, gt_joints: np.ndarray) -> np.ndarray:
