@@ -11,9 +11,11 @@ DESCRIPTION = """\
 Train METHOD on DATA's train split (early stopping on its val split) and write one
 checkpoint file to --out. Hyper-parameters come from --profile (smoke: seconds, for
 tests; default: the benchmark's; paper: GRIP's network sizes). An interrupted GRIP
-training resumes from <out>.partial when re-run with the same arguments. --nproc N
-trains with PyTorch DDP on N local processes (batch_size stays the global batch; see
-docs/distributed_training.md); under torchrun each process is one rank."""
+training resumes from <out>.partial when re-run with the same arguments. --device cuda
+trains on the GPU (every method; deterministic per machine, not bit-equal to the CPU;
+checkpoints hold CPU tensors). --nproc N trains with PyTorch DDP on N local processes
+(gloo on the CPU, nccl with one GPU per process under --device cuda; batch_size stays the
+global batch; see docs/distributed_training.md); under torchrun each process is one rank."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:

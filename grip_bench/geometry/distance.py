@@ -409,10 +409,22 @@ class DistanceField:
         For losses: its gradient is the trilinear field's, and its values agree with
         :meth:`signed_distance` wherever that one trusts the grid.
         """
-        u = points.to(torch.float32) * self._scale + self._shift
-        v = F.grid_sample(self._vol, u.reshape(1, 1, 1, -1, 3), align_corners=True,
+        vol, scale, shift = self._grid_on(points.device)
+        u = points.to(torch.float32) * scale + shift
+        v = F.grid_sample(vol, u.reshape(1, 1, 1, -1, 3), align_corners=True,
                           padding_mode="border")
         return v.reshape(points.shape[:-1])
+
+    def _grid_on(self, device: torch.device) -> tuple[torch.Tensor, ...]:
+        """The value volume and its coordinate transform on ``device``: the CPU tensors
+        themselves there, elsewhere a copy made on first use and kept (a GPU loss reads
+        the grid where its points are, without a transfer per batch)."""
+        if device == self._vol.device:
+            return self._vol, self._scale, self._shift
+        copies = self.__dict__.setdefault("_device_grids", {})
+        if device not in copies:
+            copies[device] = tuple(t.to(device) for t in (self._vol, self._scale, self._shift))
+        return copies[device]
 
     def within_grid(self, points: np.ndarray) -> np.ndarray:
         """Bool ``(...)``: points ``(..., 3)`` inside the fine grid's nodes. A point outside is
@@ -570,8 +582,10 @@ def grid_signed_distance_many(
     """
     order = torch.argsort(which, stable=True)
     ids, counts = torch.unique_consecutive(which[order], return_counts=True)
+    # the group sizes are needed on the host: one small read (a sync on a GPU) per call
+    groups = torch.stack([ids, counts]).tolist()
     parts = [
         fields[k].grid_signed_distance(x)
-        for k, x in zip(ids.tolist(), torch.split(points[order], counts.tolist()), strict=True)
+        for k, x in zip(groups[0], torch.split(points[order], groups[1]), strict=True)
     ]
     return torch.cat(parts)[torch.argsort(order)]

@@ -84,23 +84,33 @@ class HandModel(torch.nn.Module):
             g_pos.append(g_pos[p] + (g_rot[p] @ (rest[j] - rest[p])[:, None])[..., 0])
         return torch.stack(g_rot, 1), torch.stack(g_pos, 1)
 
-    def vertices(self, rot: torch.Tensor, ids: ArrayLike | None = None) -> torch.Tensor:
+    def vertices(self, rot: torch.Tensor, ids: ArrayLike | torch.Tensor | None = None
+                 ) -> torch.Tensor:
+        """``ids``: vertex indices, as an index tensor on the model's device for losses in
+        a loop (no host-to-device copy per call) or anything ``np.array`` takes."""
         out = []
         for h, hand in enumerate(self.hands):
             g_rot, g_pos = self._fk(hand, rot[:, h])
             rest = hand.rest_joints.to(rot)
             shift = g_pos - torch.einsum("njab,jb->nja", g_rot, rest)  # x -> R x + shift
-            sel = slice(None) if ids is None else torch.as_tensor(np.array(ids))
+            sel = (slice(None) if ids is None else ids if isinstance(ids, torch.Tensor)
+                   else torch.as_tensor(np.array(ids)))
             w, v = hand.weights[sel].to(rot), hand.template_vertices[sel].to(rot)
             r = torch.einsum("kj,njab->nkab", w, g_rot)
             out.append(torch.einsum("nkab,kb->nka", r, v) + torch.einsum("kj,nja->nka", w, shift))
         return torch.stack(out, 1)
 
 
+def hand_model(scale: float = 1.0, device: str | torch.device = "cpu") -> HandModel:
+    """A cached :class:`HandModel` of one hand scale (float64 buffers are not needed), its
+    buffers on ``device``: one cached model per device, so the GPU copy of the training
+    losses never moves the CPU one the data preparation uses."""
+    return _hand_model(float(scale), str(torch.device(device)))
+
+
 @functools.lru_cache(maxsize=4)
-def hand_model(scale: float = 1.0) -> HandModel:
-    """A cached :class:`HandModel` of one hand scale (float64 buffers are not needed)."""
-    return HandModel(scale)
+def _hand_model(scale: float, device: str) -> HandModel:
+    return HandModel(scale).to(device)
 
 
 def hand_proximity_points(poses_6d: np.ndarray, rot: np.ndarray, transl: np.ndarray,

@@ -33,8 +33,18 @@ Under torchrun (or ``grip-bench train --nproc N``) the three networks train with
 its share of every seeded global batch, BatchNorm uses the global batch's statistics, the
 validation loss is reduced over the ranks and only rank 0 writes files
 (docs/distributed_training.md). One process runs the plain path, byte for byte as before.
-GRIP trains on the CPU only: its batches, the hand model of the vertex loss and the
-distance grids of RNet's loss are CPU tensors and numpy, and DDP does not change that.
+
+``device`` (``--device cuda``): the three networks, every batch (built as CPU tensors from
+the numpy features, moved once in :meth:`Stage.fetch`), the hand model of the vertex loss
+and the distance grids of RNet's loss live on that device; the loss of an epoch is read
+back once at its end, not per batch. Data preparation stays on the CPU (features, RNet's
+samples: CNet's predictions come back once per chunk). Checkpoints, partial checkpoints
+and the shared ANet hold CPU tensors, so a GPU-trained file loads anywhere. Under DDP
+with ``cuda`` each rank trains on ``cuda:LOCAL_RANK`` over nccl. A GPU training is
+deterministic for a seed on one machine (``CUBLAS_WORKSPACE_CONFIG``, set here when
+unset) but not bit-equal to the CPU's; the CPU path writes the same bytes as before the
+device existed, and a non-CPU training's fingerprint names its device type, so its
+partial checkpoint, shared ANet and finished checkpoint never stand in for a CPU one.
 """
 
 from __future__ import annotations
@@ -76,6 +86,11 @@ if TYPE_CHECKING:
 STAGES = ("anet", "cnet", "rnet")
 CONFIG_CLASSES = {"anet": ANetConfig, "cnet": CNetConfig, "rnet": RNetConfig}
 VOXEL_DIM = int(np.prod(C.VOXEL_CELLS))
+# cuBLAS's deterministic workspace setting (one of the two values its documentation gives
+# for reproducible results; torch's deterministic mode asks for it on CUDA >= 10.2)
+CUBLAS_WORKSPACE = ":4096:8"
+CPU = torch.device("cpu")
+PROGRESS_EVERY = 10  # batches between the progress bar's loss terms (each read syncs a GPU)
 
 
 @dataclass(frozen=True)
@@ -222,13 +237,15 @@ class VertexFn:
     """Differentiable hand vertices for the vertex L1: ``(..., 2, 15, 6) -> (..., 2, K, 3)``.
 
     K = ``loss_vertices`` vertices at a fixed stride over the mesh (0: all), in the hand frame.
+    The hand model and the vertex indices live on ``device``, the poses' device.
     """
 
-    def __init__(self, n_vertices: int):
-        self.model = hand_model(1.0)
+    def __init__(self, n_vertices: int, device: torch.device = CPU):
+        self.model = hand_model(1.0, device)
         V = self.model.hands[0].num_vertices
         self.ids = (
-            None if n_vertices in (0, V) else np.linspace(0, V - 1, n_vertices).round().astype(int)
+            None if n_vertices in (0, V) else torch.as_tensor(
+                np.linspace(0, V - 1, n_vertices).round().astype(int), device=device)
         )
 
     def __call__(self, poses: torch.Tensor) -> torch.Tensor:
@@ -246,17 +263,22 @@ class HandObjectDistance:
     (the 99 proximity vertices plus ``n_vertices`` at a fixed stride), placed at the batch's
     wrists and read from each object's distance grid
     (:meth:`~grip_bench.geometry.distance.DistanceField.grid_signed_distance`).
-    ``proximity_ids`` index the proximity vertices among the K.
+    ``proximity_ids`` index the proximity vertices among the K. The hand model and the
+    indices live on ``device`` (the poses' and the batch's); each grid is copied there on
+    first use (:meth:`~grip_bench.geometry.distance.DistanceField.grid_signed_distance`).
     """
 
     def __init__(
-        self, library: ObjectLibrary, objects: Iterable[str], n_vertices: int = 256
+        self, library: ObjectLibrary, objects: Iterable[str], n_vertices: int = 256,
+        device: torch.device = CPU,
     ):
-        self.model = hand_model(1.0)  # vertices scale linearly with the hand scale
+        # vertices scale linearly with the hand scale
+        self.model = hand_model(1.0, device)
         V = self.model.hands[0].num_vertices
         prox = np.array(self.model.proximity_ids)
-        self.ids = np.union1d(prox, np.linspace(0, V - 1, n_vertices).round().astype(int))
-        self.proximity_ids = torch.as_tensor(np.searchsorted(self.ids, prox))
+        ids = np.union1d(prox, np.linspace(0, V - 1, n_vertices).round().astype(int))
+        self.ids = torch.as_tensor(ids, device=device)
+        self.proximity_ids = torch.as_tensor(np.searchsorted(ids, prox), device=device)
         self.fields = [library.field(str(o)) for o in objects]
 
     def __call__(self, poses: torch.Tensor, b: dict) -> torch.Tensor:
@@ -273,18 +295,20 @@ class HandObjectDistance:
 def cnet_predict(
     cnet: CNet, fs: FrameSet, idx: np.ndarray, variant: Variant, batch: int = 1024
 ) -> np.ndarray:
-    """CNet's poses at frames ``idx`` ``(N, 2, 15, 6)`` (eval mode)."""
+    """CNet's poses at frames ``idx`` ``(N, 2, 15, 6)`` (eval mode), computed on CNet's
+    device; each chunk of ``batch`` frames comes back to the host once (data preparation)."""
     cnet.eval()
+    device = next(cnet.parameters()).device
     out = []
     for s in range(0, len(idx), batch):
-        b = cnet_batch(fs, idx[s:s + batch], variant)
+        b = {k: v.to(device) for k, v in cnet_batch(fs, idx[s:s + batch], variant).items()}
         out.append(
             cnet(
                 b["body"],
                 b["ambient"],
                 b["proximity"],
                 b["future"] if variant.future_frames else None,
-            ).poses_t.numpy()
+            ).poses_t.cpu().numpy()
         )
     return np.concatenate(out) if out else np.zeros((0, 2, 15, 6), np.float32)
 
@@ -340,14 +364,21 @@ def placement(fs: FrameSet, idx: np.ndarray, objects: list[str]) -> dict:
 # --- the generic loop ---------------------------------------------------------------------
 @dataclass
 class Stage:
-    """One network's training problem: its batches and its loss."""
+    """One network's training problem: its batches and its loss, on ``device``."""
 
     name: str
     model: torch.nn.Module
     n_train: int
     n_val: int
-    batch: callable  # (split "train"|"val", idx) -> dict of tensors
+    batch: callable  # (split "train"|"val", idx) -> dict of (CPU) tensors
     loss: callable  # (model, batch) -> (total, {term: tensor})
+    device: torch.device = CPU
+
+    def fetch(self, split: str, idx: np.ndarray) -> dict:
+        """:attr:`batch` with every tensor on :attr:`device`: the one move of a batch
+        (``Tensor.to`` returns the tensor itself where it already is, so the CPU path
+        does no copy)."""
+        return {k: v.to(self.device) for k, v in self.batch(split, idx).items()}
 
 
 def _seed(*parts: int) -> int:
@@ -358,17 +389,33 @@ def _evaluate(stage: Stage, bs: int, d: ddp.Dist = ddp.SINGLE) -> float:
     """Mean validation loss; under DDP rank r takes the batches r, r + N, ... and the
     (loss sum, count) pair is reduced, so every rank gets the same value to decide on."""
     stage.model.eval()
-    total, n = 0.0, 0
+    losses, sizes = [], []
     with torch.no_grad():
         for k, s in enumerate(range(0, stage.n_val, bs)):
             if k % d.world != d.rank:
                 continue
             idx = np.arange(s, min(s + bs, stage.n_val))
-            loss, _ = stage.loss(stage.model, stage.batch("val", idx))
-            total, n = total + float(loss) * len(idx), n + len(idx)
+            loss, _ = stage.loss(stage.model, stage.fetch("val", idx))
+            losses.append(loss.detach())
+            sizes.append(len(idx))
+    total, n = 0.0, 0
+    for value, size in zip(_host_floats(losses), sizes, strict=True):  # the old float sum
+        total, n = total + value * size, n + size
     if d.active:
-        return ddp.global_mean(total, n, d)
+        return ddp.global_mean(total, n, d, _collective_device(stage.device))
     return total / max(n, 1)
+
+
+def _host_floats(values: list[torch.Tensor]) -> list[float]:
+    """Scalar tensors ``[()]`` as Python floats in one device-to-host read (one GPU sync
+    per epoch instead of one per batch; the same float32 -> float64 values)."""
+    return torch.stack(values).tolist() if values else []
+
+
+def _collective_device(device: torch.device) -> torch.device:
+    """Where DDP's float64 reductions run: the GPU under nccl (it has no CPU tensors),
+    the CPU under gloo."""
+    return device if device.type == "cuda" else CPU
 
 
 def _epoch(
@@ -393,20 +440,26 @@ def _epoch(
     starts = [s for s in range(0, stage.n_train, bs)
               if min(bs, stage.n_train - s) > max(1, d.world - 1)]
     bar = _bar(starts, f"{stage.name} epoch {epoch + 1}", progress)
-    total = 0.0
-    for s in bar:
+    # the batch losses stay where they are computed until the epoch ends: no host read
+    # (a GPU sync) per batch; a progress bar reads the terms every PROGRESS_EVERY batches
+    losses, factors = [], []
+    for k, s in enumerate(bar):
         glob = order[s:s + bs]
         mine = ddp.rank_share(glob, d) if d.active else glob
-        loss, terms = stage.loss(net, stage.batch("train", mine))
+        loss, terms = stage.loss(net, stage.fetch("train", mine))
         opt.zero_grad(set_to_none=True)
         w = ddp.share_weight(len(mine), len(glob), d)  # 1.0 unless a last batch splits unevenly
         (loss * w if w != 1.0 else loss).backward()
         opt.step()
-        total += float(loss.detach()) * (w / d.world if d.active else 1.0)
-        if progress:
-            bar.set_postfix({k: f"{float(v.detach()):.4f}" for k, v in terms.items()})
+        losses.append(loss.detach())
+        factors.append(w / d.world if d.active else 1.0)
+        if progress and (k % PROGRESS_EVERY == 0 or k == len(starts) - 1):
+            bar.set_postfix({t: f"{float(v.detach()):.4f}" for t, v in terms.items()})
+    total = 0.0
+    for value, f in zip(_host_floats(losses), factors, strict=True):  # the old float sum
+        total += value * f
     if d.active:  # the mean over global batches of the global-batch mean loss
-        total = ddp.global_sum([total], d)[0]
+        total = ddp.global_sum([total], d, _collective_device(stage.device))[0]
     return total / max(len(starts), 1)
 
 
@@ -448,7 +501,7 @@ def fit(
     """
     d = ddp.current()
     ddp.check_batch(hp["batch_size"], d, "grip.batch_size")
-    net = ddp.wrap(stage.model, d)  # stage.model itself for one process
+    net = ddp.wrap(stage.model, d, stage.device)  # stage.model itself for one process
     opt = torch.optim.Adam(stage.model.parameters(), lr=hp["lr"], weight_decay=hp["weight_decay"])
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
         opt, factor=hp["lr_factor"], patience=hp["lr_patience"]
@@ -486,7 +539,7 @@ def _subset(n: int, cap: int, rng: np.random.Generator) -> np.ndarray:
     return np.sort(rng.choice(idx, cap, replace=False)) if cap and n > cap else idx
 
 
-def _anet_stage(model: ANet, data: dict, hp: dict) -> Stage:
+def _anet_stage(model: ANet, data: dict, hp: dict, device: torch.device) -> Stage:
     cfg, lc = model.cfg, LossConfig()
     caps = {"train": hp["anet_max_train_frames"], "val": hp["max_val_frames"]}
     idx = {
@@ -499,11 +552,13 @@ def _anet_stage(model: ANet, data: dict, hp: dict) -> Stage:
     def loss(m: ANet, b: dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         return anet_loss(m(b["current"], b["noisy_future"]), b["target"], lc, cfg.consistency)
 
-    return Stage("anet", model, len(idx["train"]), len(idx["val"]), batch, loss)
+    return Stage("anet", model, len(idx["train"]), len(idx["val"]), batch, loss, device)
 
 
-def _cnet_stage(model: CNet, data: dict, hp: dict, variant: Variant) -> Stage:
-    lc, vert = LossConfig(), VertexFn(hp["loss_vertices"])
+def _cnet_stage(
+    model: CNet, data: dict, hp: dict, variant: Variant, device: torch.device
+) -> Stage:
+    lc, vert = LossConfig(), VertexFn(hp["loss_vertices"], device)
     rng = np.random.default_rng(hp["seed"] + 1)
     idx = {
         s: _subset_of(data[s].pair_index(), hp[f"max_{s}_frames"], rng) for s in ("train", "val")
@@ -518,7 +573,7 @@ def _cnet_stage(model: CNet, data: dict, hp: dict, variant: Variant) -> Stage:
         )
         return cnet_loss(out, b, lc, variant.consistency, vert)
 
-    return Stage("cnet", model, len(idx["train"]), len(idx["val"]), batch, loss)
+    return Stage("cnet", model, len(idx["train"]), len(idx["val"]), batch, loss, device)
 
 
 def _subset_of(idx: np.ndarray, cap: int, rng: np.random.Generator) -> np.ndarray:
@@ -526,9 +581,10 @@ def _subset_of(idx: np.ndarray, cap: int, rng: np.random.Generator) -> np.ndarra
 
 
 def _rnet_stage(
-    model: RNet, rdata: dict, hp: dict, dist: HandObjectDistance | None = None
+    model: RNet, rdata: dict, hp: dict, dist: HandObjectDistance | None = None,
+    device: torch.device = CPU,
 ) -> Stage:
-    lc, vert = LossConfig(), VertexFn(hp["loss_vertices"])
+    lc, vert = LossConfig(), VertexFn(hp["loss_vertices"], device)
     w_pen = float(hp["w_penetration"])
 
     def batch(split: str, i: np.ndarray) -> dict:
@@ -551,20 +607,36 @@ def _rnet_stage(
         return total, terms
 
     return Stage(
-        "rnet", model, len(rdata["train"]["poses"]), len(rdata["val"]["poses"]), batch, loss
+        "rnet", model, len(rdata["train"]["poses"]), len(rdata["val"]["poses"]), batch, loss,
+        device,
     )
 
 
 # --- orchestration ------------------------------------------------------------------------------
 @contextlib.contextmanager
 def deterministic(threads: int | None = None) -> Iterator[None]:
-    """Deterministic torch algorithms for the block (restored afterwards)."""
+    """Deterministic torch algorithms for the block (restored afterwards).
+
+    On CUDA, deterministic cuBLAS needs ``CUBLAS_WORKSPACE_CONFIG`` (see
+    :func:`_cuda_determinism`, called by :func:`train_grip` before any CUDA work)."""
     before = torch.are_deterministic_algorithms_enabled()
     torch.use_deterministic_algorithms(True, warn_only=True)
     try:
         yield
     finally:
         torch.use_deterministic_algorithms(before)
+
+
+def _cuda_determinism(device: torch.device) -> None:
+    """Set ``CUBLAS_WORKSPACE_CONFIG`` for a CUDA training when the environment has none.
+
+    cuBLAS reads it when the process first uses it, so it takes effect only when this
+    training is the process's first cuBLAS work (``grip-bench train``, a runner's worker);
+    export it beforehand to be sure. With it a GPU training is deterministic for a seed on
+    one machine (same GPU model, driver and torch); it is never bit-equal to the CPU's.
+    """
+    if device.type == "cuda" and not os.environ.get("CUBLAS_WORKSPACE_CONFIG"):
+        os.environ["CUBLAS_WORKSPACE_CONFIG"] = CUBLAS_WORKSPACE
 
 
 def _fingerprint(hp: dict, variant: Variant, data_hash: str, seed: int) -> dict:
@@ -605,22 +677,30 @@ def train_grip(
     bytes). Features go to ``feature_cache`` (None: ``<out dir>/.grip-cache``). Resumes
     from ``<out>.partial`` when present; an existing ``out`` of the same data, profile, seed
     and variant is kept as it is. Returns ``out``.
+
+    ``device``: ``cpu``, ``cuda`` or ``cuda:N`` (a ``torch.device`` too): where the
+    networks train (module docstring); an unknown or absent device is a one-line
+    :class:`InputError` naming ``--device`` before any work. Files hold CPU tensors.
     """
     from ..data.grab_io import dataset_hash
 
-    if device != "cpu":
-        raise InputError("GRIP training runs on the CPU in this suite (use --device cpu)", "device")
+    d = ddp.current()  # a DDP job under torchrun / --nproc, else one process
+    dev = ddp.train_device(device, d)  # cuda:LOCAL_RANK for a rank of a CUDA job
+    if dev.type not in ("cpu", "cuda"):
+        raise InputError(f"GRIP trains on cpu or cuda, not {dev.type}", "--device")
+    _cuda_determinism(dev)
     out, data_dir = Path(out), Path(data_dir)
     hp = dict(profile["grip"])
     seed = hp["seed"] if seed is None else int(seed)
     hp["seed"] = seed
-    d = ddp.current()  # a DDP job under torchrun / --nproc, else one process
     ddp.check_batch(hp["batch_size"], d, "grip.batch_size")
     progress = progress and d.main
     data_hash = dataset_hash(data_dir)
     fp = _fingerprint(hp, variant, data_hash, seed)
     if d.active:  # N processes train other weights than one: never mix their partials
         fp["nproc"] = d.world
+    if dev.type != "cpu":  # nor a GPU's with the CPU's (absent on the CPU: its bytes stay)
+        fp["device"] = dev.type
     if ddp.agree(_already_trained(out, fp), d):
         return out
     # features are shared by every variant trained on the same data (keyed by its hash)
@@ -632,9 +712,9 @@ def train_grip(
     models_done, states = _load_partial(partial, fp)
     shared = _shared_anet_path(cache, fp, configs["anet"])
     with deterministic():
-        nets = _build_nets(configs, seed, models_done)
+        nets = _build_nets(configs, seed, models_done, dev)
         _train_stages(nets, states, data, hp, variant, data_dir, (partial, configs, fp, shared),
-                      seed, progress, d)
+                      seed, progress, d, dev)
     meta = {**fp, "curves": {k: {"train": s.train_curve, "val": s.val_curve, "epochs": s.epoch}
                              for k, s in states.items()},
             "variant": asdict(variant), "profile": profile.get("name", "?"),
@@ -668,6 +748,7 @@ def _features(
 def _train_stages(
     nets: dict, states: dict, data: dict, hp: dict, variant: Variant, data_dir: Path,
     files: tuple, seed: int, progress: bool, d: ddp.Dist,
+    device: torch.device = CPU,
 ) -> None:
     """ANet, CNet, RNet in turn (a finished stage is skipped); ``states`` is updated.
 
@@ -690,13 +771,13 @@ def _train_stages(
         if st.done:
             states[name] = st
             continue
-        stage = _make_stage(name, nets, data, hp, variant, ObjectLibrary(data_dir))
+        stage = _make_stage(name, nets, data, hp, variant, ObjectLibrary(data_dir), device)
         epochs = hp[f"epochs_{name}"]
 
         def save(s: StageState, name: str = name) -> None:
             states[name] = s
             if d.main:
-                _save_partial(partial, nets, configs, states, fp)
+                _save_partial(partial, nets, configs, states, fp, device)
 
         states[name] = fit(stage, hp, st, seed, epochs, save, progress)
         if name == "anet" and d.main:
@@ -717,8 +798,9 @@ def _shared_anet_path(cache: Path, fp: dict, cfg: ANetConfig) -> Path:
 def _save_shared_anet(path: Path, anet: ANet, st: StageState) -> None:
     curves = {"epoch": st.epoch, "best_loss": float(st.best_loss),
               "train_curve": st.train_curve, "val_curve": st.val_curve}
-    with atomic_file(path) as f:
-        torch.save({"state": anet.state_dict(), "curves": curves}, f)
+    state = anet.state_dict()
+    with atomic_file(path) as f:  # CPU tensors: a GPU-trained file loads anywhere
+        torch.save({"state": _host_copy(state, _device_of(anet)), "curves": curves}, f)
 
 
 def _load_shared_anet(path: Path, anet: ANet) -> StageState | None:
@@ -738,11 +820,16 @@ def _already_trained(out: Path, fp: dict) -> bool:
     if not out.is_file():
         return False
     meta = load_checkpoint(out, CONFIG_CLASSES).meta
-    return all(meta.get(k) == v for k, v in fp.items())
+    # a CPU fingerprint has no "device": a GPU-trained file must not pass for a CPU one
+    return all(meta.get(k) == v for k, v in fp.items()) and meta.get("device") == fp.get("device")
 
 
-def _build_nets(configs: dict, seed: int, states: dict) -> dict:
-    """Seeded fresh networks, with the weights of ``states`` where a partial run has them."""
+def _build_nets(
+    configs: dict, seed: int, states: dict, device: torch.device = CPU
+) -> dict:
+    """Seeded fresh networks, with the weights of ``states`` where a partial run has them,
+    on ``device`` (built and seeded on the CPU, so every device starts from the same
+    weights, then moved)."""
     nets = {}
     for name in STAGES:
         torch.manual_seed(_seed(seed, STAGES.index(name), 999))
@@ -752,31 +839,63 @@ def _build_nets(configs: dict, seed: int, states: dict) -> dict:
             torch.nn.init.zeros_(nets[name].decoder.head.bias)
         if name in states:
             nets[name].load_state_dict(states[name])
+        nets[name] = nets[name].to(device)
     return nets
 
 
 def _make_stage(
-    name: str, nets: dict, data: dict, hp: dict, variant: Variant, library: ObjectLibrary
+    name: str, nets: dict, data: dict, hp: dict, variant: Variant, library: ObjectLibrary,
+    device: torch.device = CPU,
 ) -> Stage:
     if name == "anet":
-        return _anet_stage(nets["anet"], data, hp)
+        return _anet_stage(nets["anet"], data, hp, device)
     if name == "cnet":
-        return _cnet_stage(nets["cnet"], data, hp, variant)
+        return _cnet_stage(nets["cnet"], data, hp, variant, device)
     rng = np.random.default_rng(_seed(hp["seed"], 7))
     objects = sorted({str(o) for s in ("train", "val") for o in data[s].objects})
     rdata = {
         s: rnet_data(nets["cnet"], data[s], library, variant, hp, rng, objects)
         for s in ("train", "val")
     }
-    return _rnet_stage(nets["rnet"], rdata, hp, HandObjectDistance(library, objects))
+    return _rnet_stage(nets["rnet"], rdata, hp,
+                       HandObjectDistance(library, objects, device=device), device)
 
 
-def _save_partial(path: Path, nets: dict, configs: dict, states: dict, fp: dict) -> None:
-    stages = {k: {**asdict(s)} for k, s in states.items()}
+def _save_partial(
+    path: Path, nets: dict, configs: dict, states: dict, fp: dict,
+    device: torch.device = CPU,
+) -> None:
+    """The partial checkpoint: networks and stage states (best weights, optimizer) as CPU
+    tensors, so a run resumes on any device."""
+    stages = {k: _host_copy({**asdict(s)}, device) for k, s in states.items()}
     for s in stages.values():
         s["best_loss"] = float(s["best_loss"])
     save_checkpoint(path, model_state={k: m.state_dict() for k, m in nets.items()},
                     configs=configs, meta={"fingerprint": fp, "stages": stages})
+
+
+def _device_of(module: torch.nn.Module) -> torch.device:
+    return next(module.parameters()).device
+
+
+def _host_copy(obj: Any, device: torch.device) -> Any:
+    """``obj`` (nested dicts, lists and tuples of tensors) with every tensor on the CPU, for
+    files. ``obj`` itself when ``device`` is the CPU, so the CPU path pickles exactly the
+    objects it did before devices existed (the same bytes)."""
+    return obj if device.type == "cpu" else _on_host(obj)
+
+
+def _on_host(obj: Any) -> Any:
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().cpu()
+    if isinstance(obj, dict):
+        out = type(obj)((k, _on_host(v)) for k, v in obj.items())
+        if hasattr(obj, "_metadata"):  # a state_dict's module versions
+            out._metadata = obj._metadata
+        return out
+    if isinstance(obj, list | tuple):
+        return type(obj)(_on_host(v) for v in obj)
+    return obj
 
 
 def load_grip(path: str | os.PathLike, device: str = "cpu") -> tuple[dict, dict]:

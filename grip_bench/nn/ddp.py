@@ -78,6 +78,45 @@ def backend_for(device: str | torch.device) -> str:
     return "nccl" if torch.device(device).type == "cuda" else "gloo"
 
 
+def resolve_device(device: str | torch.device) -> torch.device:
+    """``--device`` as a ``torch.device``: ``cpu``, ``cuda`` or ``cuda:N`` (or ``mps``).
+
+    An unknown device, or one this machine does not have, is an :class:`InputError` naming
+    ``--device``: a run asked for the GPU must not silently train on the CPU. GRIP and the
+    baselines share it (both sit above this layer).
+    """
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError, ValueError):
+        raise InputError(f"unknown device {device!r} (cpu or cuda)", "--device") from None
+    if dev.type == "cpu":
+        return dev
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise InputError("CUDA is not available on this machine (use --device cpu)",
+                             "--device")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise InputError(f"no CUDA device {dev.index} on this machine "
+                             f"({torch.cuda.device_count()} found)", "--device")
+        return dev
+    if dev.type == "mps":
+        if not torch.backends.mps.is_available():
+            raise InputError("MPS is not available on this machine (use --device cpu)",
+                             "--device")
+        return dev
+    raise InputError(f"unsupported device {device!r} (cpu or cuda)", "--device")
+
+
+def train_device(device: str | torch.device, d: Dist) -> torch.device:
+    """The device this rank trains on: :func:`resolve_device` of ``--device``, and under a
+    DDP job with ``cuda`` the rank's own GPU ``cuda:LOCAL_RANK`` (nccl's one-GPU-per-rank
+    layout; :func:`process_group` made it the current device)."""
+    dev = resolve_device(device)
+    if d.active and dev.type == "cuda":
+        dev = resolve_device(f"cuda:{d.local_rank}")
+    return dev
+
+
 @contextlib.contextmanager
 def process_group(device: str | torch.device = "cpu") -> Iterator[Dist]:
     """Join the job described by torchrun's environment (``WORLD_SIZE > 1``) for the block.
@@ -148,6 +187,16 @@ def check_nproc(nproc: int, where: str = "--nproc") -> int:
     if not isinstance(nproc, int) or isinstance(nproc, bool) or nproc < 1:
         raise InputError(f"the process count must be an int >= 1, got {nproc!r}", where)
     return nproc
+
+
+def check_gpus(nproc: int, device: str | torch.device) -> None:
+    """A local CUDA job of ``nproc`` processes needs one GPU per process (rank r trains on
+    ``cuda:r``): an :class:`InputError` before any process starts, else nothing."""
+    if nproc > 1 and resolve_device(device).type == "cuda":
+        found = torch.cuda.device_count()
+        if nproc > found:
+            raise InputError(f"{nproc} processes on cuda need one GPU each, {found} found",
+                             "--nproc")
 
 
 def check_batch(batch_size: int, d: Dist, where: str) -> None:

@@ -4,7 +4,8 @@
 code on the same floating-point path (one torch thread) and write the same bytes.
 
 ``nproc > 1`` (``--nproc``, the profile's ``[run] train_nproc``) trains with PyTorch DDP on
-that many local processes (:func:`grip_bench.nn.ddp.spawn`, gloo on a free localhost port;
+that many local processes (:func:`grip_bench.nn.ddp.spawn`, a free localhost port; gloo
+on the CPU, nccl with one GPU per rank for ``--device cuda``;
 docs/distributed_training.md); under an external ``torchrun`` the process joins its job.
 """
 
@@ -36,6 +37,7 @@ def train_checkpoint(
     ddp.check_nproc(nproc)
     if nproc > 1 and ddp.env_world() <= 1:
         METHODS.get(name)  # an unknown name fails here, not in N processes
+        ddp.check_gpus(nproc, ctx.device)  # so do a missing CUDA and too few GPUs
         ddp.spawn(_rank_main, nproc, (name, str(data_dir), str(out), ctx))
         return Path(out)
     method = METHODS.get(name).build()
