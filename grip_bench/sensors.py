@@ -38,6 +38,7 @@ from .core.frames import NET_SIDES
 if TYPE_CHECKING:
     from .data.library import ObjectLibrary
     from .data.sequence import Sequence
+    from .geometry.distance import DistanceField
 
 AMBIENT_KINDS = ("distance", "voxel", "none")
 
@@ -73,15 +74,23 @@ def hemisphere(n: int = C.AMBIENT_N_POINTS, radius: float = C.AMBIENT_RADIUS,
 
 
 def ambient_points(side: str, scale: float = 1.0) -> np.ndarray:
-    """Ambient sensor points ``(1024, 3)`` in the hand frame (m).
+    """Ambient sensor points ``(1024, 3)`` in the hand frame (m), read-only.
 
     The same sample serves both hands, mirrored in x for the left (the left procedural
     hand is the x-mirror of the right), so point k senses the same place on either hand.
+    Built once per (side, scale): regenerating the hemisphere cost a streamed frame ~0.2 ms.
     """
+    return _ambient_points(side, float(scale))
+
+
+@functools.lru_cache(maxsize=16)
+def _ambient_points(side: str, scale: float) -> np.ndarray:
     pts = hemisphere()
     if side == "left":
         pts = pts * np.array([-1.0, 1.0, 1.0])
-    return _mean_hand(side, float(scale))[0] + pts
+    out = _mean_hand(side, scale)[0] + pts
+    out.flags.writeable = False  # shared by every caller
+    return out
 
 
 def voxel_points(side: str, scale: float = 1.0) -> np.ndarray:
@@ -282,6 +291,73 @@ def stage_one(
         prox.append(h)
         mean.append(d.mean(axis=1))
     return StageOne(np.stack(amb, 1), np.stack(prox, 1), np.stack(mean, 1))
+
+
+# --- the batched form: one rigid map per hand and frame ---------------------------------------
+@functools.lru_cache(maxsize=16)
+def hand_sensor_points(scale: float, ambient: str = "distance") -> tuple[np.ndarray, np.ndarray]:
+    """Both hands' (left, right) stage-one points in their wrist frames (m), read-only: ambient
+    ``(2, A, 3)`` (the 1024 hemisphere points, the 1014 voxel centres, or ``A = 0`` for
+    ``"none"``) and the relaxed mean hand's proximity vertices ``(2, 99, 3)``."""
+    if ambient not in AMBIENT_KINDS:
+        raise InputError(
+            f"unknown ambient kind {ambient!r} (known: {list(AMBIENT_KINDS)})", "ambient"
+        )
+    pick = {"distance": ambient_points, "voxel": voxel_points}.get(ambient)
+    amb = (np.zeros((2, 0, 3)) if pick is None
+           else np.stack([pick(side, scale) for side in NET_SIDES]))
+    prox = np.stack([mean_hand_points(side, scale) for side in NET_SIDES])
+    for a in (amb, prox):
+        a.flags.writeable = False
+    return amb, prox
+
+
+def hand_to_object(
+    obj_rot: np.ndarray, obj_transl: np.ndarray, wrist_rot: np.ndarray, wrist_transl: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each hand frame's rigid map into the object's frame, ``p_obj = M p + c``.
+
+    ``obj_rot (..., 3, 3)`` as ``Sequence.object_rotations`` returns it (a world point ``p``
+    sits at ``R_o (p - t_o)`` in the object's frame, ``core.frames.world_to_object``),
+    ``obj_transl (..., 3)``; wrists ``wrist_rot (..., 2, 3, 3)``, ``wrist_transl (..., 2, 3)``
+    (``world = R_w local + t_w``). Returns ``M = R_o R_w (..., 2, 3, 3)`` and
+    ``c = R_o (t_w - t_o) (..., 2, 3)``: one 3 x 3 map per hand and frame instead of
+    hand -> world -> object over every point (the same points to float rounding).
+    """
+    R = np.asarray(obj_rot, np.float64)[..., None, :, :]
+    t = np.asarray(wrist_transl, np.float64) - np.asarray(obj_transl, np.float64)[..., None, :]
+    return R @ np.asarray(wrist_rot, np.float64), (R @ t[..., None])[..., 0]
+
+
+def apply_rigid(M: np.ndarray, c: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """Points ``local (2, N, 3)`` of both hands through their maps ``M (T, 2, 3, 3)``,
+    ``c (T, 2, 3)`` (:func:`hand_to_object`): ``(T, 2, N, 3)``."""
+    return np.matmul(local, np.swapaxes(M, -1, -2)) + c[..., None, :]
+
+
+def stage_one_rigid(
+    field: DistanceField, M: np.ndarray, c: np.ndarray, scale: float = 1.0,
+    ambient: str = "distance",
+) -> StageOne:
+    """:func:`stage_one` from each hand's rigid map into the object's frame
+    (:func:`hand_to_object`, ``M (T, 2, 3, 3)``, ``c (T, 2, 3)``) and the object's distance
+    field: both hands' points in one distance query per sensor, no world coordinates.
+
+    Equal to :func:`stage_one` up to float rounding (the composed map rounds differently
+    from hand -> world -> object); what the stream runs per frame. ``scale``: the hand scale.
+    """
+    amb_pts, prox_pts = hand_sensor_points(float(scale), ambient)
+    T = len(M)
+    q = apply_rigid(M, c, prox_pts).reshape(-1, 3)
+    d = np.maximum(field.signed_distance(q, far="coarse"), 0.0).reshape(T, 2, -1)
+    prox = attention(d, C.PROXIMITY_DECAY).astype(np.float32)
+    if ambient == "none":
+        return StageOne(np.zeros((T, 2, 0), np.float32), prox, d.mean(axis=2))
+    q = apply_rigid(M, c, amb_pts).reshape(-1, 3)
+    sd = field.signed_distance(q, far="coarse", exact_cells=False).reshape(T, 2, -1)
+    amb = (attention(np.maximum(sd, 0.0), C.AMBIENT_DECAY) if ambient == "distance"
+           else sd < 0).astype(np.float32)
+    return StageOne(amb, prox, d.mean(axis=2))
 
 
 def ambient_sensor(

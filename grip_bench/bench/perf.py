@@ -633,16 +633,31 @@ def _grip_stream(scene: Scene, nets: dict, floors: dict, settings: Settings,
 
 def _sensors(scene: Scene, settings: Settings, progress: Progress) -> list[Row]:
     """Stage one on the 300-frame sequence: both hands' ambient (1024 points) and mean-hand
-    proximity (99 vertices), as the pipeline and the feature cache run it."""
-    from ..sensors import stage_one
+    proximity (99 vertices), as the pipeline and the feature cache run it (``stage_one``:
+    hand -> world -> object per point and hand), and in the batched form the stream runs
+    (``stage_one_rigid``: one composed map per hand and frame, both hands per query)."""
+    from ..core.frames import NET_SIDES
+    from ..sensors import hand_to_object, stage_one, stage_one_rigid, wrist_frames
 
     seq = scene.long
-    sample = repeat(lambda: stage_one(scene.library, seq, None, "distance"), settings.repeats)
-    row = row_from(f"sensors, both hands ({seq.n_frames} frames per call)", sample,
-                   seq.n_frames, "ms/frame", "frames/s",
-                   goal=Goal("max_time", 0.1, "<= 0.1 ms/frame"))
-    progress(f"{row.stage}: {row.time:.3f} ms/frame")
-    return [row]
+    field = scene.library.field(seq.obj_name)
+
+    def rigid() -> object:
+        wrists = [wrist_frames(seq, side) for side in NET_SIDES]
+        M, c = hand_to_object(seq.object_rotations(), np.asarray(seq.object["transl"], float),
+                              np.stack([w[0] for w in wrists], 1),
+                              np.stack([w[1] for w in wrists], 1))
+        return stage_one_rigid(field, M, c, seq.hand_scale or 1.0)
+
+    rows = []
+    for what, fn in (("", lambda: stage_one(scene.library, seq, None, "distance")),
+                     (", rigid maps (the stream's form)", rigid)):
+        sample = repeat(fn, settings.repeats)
+        rows.append(row_from(f"sensors, both hands{what} ({seq.n_frames} frames per call)",
+                             sample, seq.n_frames, "ms/frame", "frames/s",
+                             goal=Goal("max_time", 0.1, "<= 0.1 ms/frame")))
+        progress(f"{rows[-1].stage}: {rows[-1].time:.3f} ms/frame")
+    return rows
 
 
 def _iv(scene: Scene, floors: dict, settings: Settings, progress: Progress) -> list[Row]:

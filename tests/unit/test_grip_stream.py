@@ -190,3 +190,84 @@ def test_stream_precision_choice():
         resolve_stream_precision("fp16", vnni)
     assert PRECISION_CHOICES == ("auto", "fp32", "bf16")  # offline's choices are unchanged
     assert STREAM_PRECISION_CHOICES == ("auto", "fp32", "bf16", "int8")
+
+
+def test_batch1_rotations_match_geometry_rotations():
+    """The stream's float64 numpy rotations against geometry.rotations (torch), including
+    the identity, tiny angles (series branches) and half turns (Shepperd's other rows)."""
+    from grip_bench.geometry import rotations as R
+    from grip_bench.grip import stream as S
+
+    rng = np.random.default_rng(0)
+    axes = rng.normal(size=(40, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    aa = np.concatenate([rng.normal(size=(200, 3)), 1e-5 * rng.normal(size=(20, 3)),
+                         np.zeros((1, 3)), (np.pi - 1e-6) * axes, np.pi * np.eye(3)])
+    m = R.axis_angle_to_matrix(aa)
+    np.testing.assert_allclose(S._aa_to_matrix(aa), m, atol=1e-14)
+    np.testing.assert_allclose(S._aa_to_matrix(aa[5]), m[5], atol=1e-14)  # no batch axis
+    np.testing.assert_allclose(S._matrix_to_aa(m[:-3]), R.matrix_to_axis_angle(m[:-3]),
+                               atol=1e-12)
+    # at exactly pi the axis' sign is arbitrary: compare the rotations
+    np.testing.assert_allclose(S._aa_to_matrix(S._matrix_to_aa(m[-3:])), m[-3:], atol=1e-12)
+    d6 = rng.normal(size=(3, 15, 6))
+    np.testing.assert_allclose(S._6d_to_matrix(d6), R.rotation_6d_to_matrix(d6), atol=1e-14)
+    np.testing.assert_array_equal(S._to_6d(m), R.matrix_to_rotation_6d(m))
+
+
+def test_batch1_kinematics_match_the_pipeline(root, seqs):
+    """The take's numpy FK (the body's chain to the wrists, the hands' proximity vertices)
+    against the pipeline's helpers (ProceduralBody FK, HandModel skinning)."""
+    from grip_bench.grip.data import arms_6d, hand_proximity_points
+    from grip_bench.grip.pipeline import moved_wrists, set_arms
+    from grip_bench.grip.stream import _frame_rotations, _Take
+    from grip_bench.sensors import wrist_frames
+
+    lib = ObjectLibrary(root)
+    seq = seqs[0]
+    take = _Take(lib.field(seq.obj_name), seq.height, seq.hand_scale, "distance")
+    rng = np.random.default_rng(1)
+    for t in (0, seq.n_frames // 2, seq.n_frames - 1):
+        f = parse_frame(frame_of(seq, t))
+        pose = f["body"]["body_pose"]
+        np.testing.assert_allclose(take.arms_6d(pose), arms_6d(pose[None])[0], atol=1e-7)
+        arms = arms_6d(pose[None])[0] + rng.normal(scale=0.05, size=(4, 6)).astype(np.float32)
+        _, rot = _frame_rotations(f)
+        transl = np.stack([f["hands"][s]["transl"] for s in ("left", "right")])
+        new, local, rot2, transl2 = take.move_arms(f["body"], arms, rot, transl)
+        ref_pose = set_arms(pose[None], arms[None])
+        np.testing.assert_allclose(new, ref_pose[0], atol=1e-12)
+        one = seq.take([t])
+        ref = moved_wrists(one, pose[None], ref_pose,
+                           {s: wrist_frames(one, s) for s in ("left", "right")})
+        for h, s in enumerate(("left", "right")):
+            np.testing.assert_allclose(rot2[h], ref[s][0][0], atol=1e-12)
+            np.testing.assert_allclose(transl2[h], ref[s][1][0], atol=1e-12)
+        poses = rng.normal(size=(2, 15, 6)).astype(np.float32)
+        got = take.hand_points(poses) @ rot2.swapaxes(-1, -2) + transl2[:, None]
+        want = hand_proximity_points(poses[None], rot2[None], transl2[None], seq.hand_scale)[0]
+        np.testing.assert_allclose(got, want, atol=1e-6)  # the pipeline skins in float32
+
+
+@pytest.mark.parametrize("variant", [
+    dict(ambient="voxel"), dict(ambient="none", proximity=False, future_frames=0),
+    dict(consistency="none"),
+    dict(geometry=False, ambient="none", proximity=False, future_frames=0),
+])
+def test_stream_variants_equal_the_online_pipeline(root, seqs, variant):
+    """Every ablation's inputs go through the stream's batch-1 path (grip-blind through the
+    pipeline's pieces): seeded untrained networks of the variant's shapes (RNet's head,
+    zero at initialisation, made non-zero so that refinement shows)."""
+    from grip_bench.grip.train import Variant, build_configs
+    from tests.grip_fixtures import tiny_profile
+
+    v = Variant(**variant)
+    torch.manual_seed(0)
+    nets = {k: c.build().eval() for k, c in build_configs(tiny_profile()["grip"], v).items()}
+    torch.nn.init.normal_(nets["rnet"].net.head.weight, std=0.02)  # RNet's starts at zero
+    lib, seq = ObjectLibrary(root), seqs[1]
+    opt = Options(v, use_rnet=v.geometry, online=True)
+    ref = GripPipeline(nets, opt).run(seq, lib)
+    stream = GripStream(nets, v, lib, seq.obj_name, use_rnet=v.geometry, height=seq.height,
+                        hand_scale=seq.hand_scale, fps=seq.fps)
+    _assert_matches(_play(stream, seq), ref)

@@ -145,3 +145,59 @@ def test_wrist_frames_follow_global_orient(data):
         rot, Rotation.from_rotvec(seq.lhand["global_orient"]).as_matrix(), atol=1e-6
     )
     np.testing.assert_array_equal(transl, seq.lhand["transl"])
+
+
+def test_hand_to_object_is_hand_to_world_to_object(data):
+    """The composed map (one 3 x 3 per hand and frame) against hand -> world (to_world) ->
+    object (world_to_object), and a hand-built analytic case."""
+    from grip_bench.core.frames import world_to_object
+
+    _, seq = data
+    wr = [S.wrist_frames(seq, s) for s in ("left", "right")]
+    rot, transl = np.stack([w[0] for w in wr], 1), np.stack([w[1] for w in wr], 1)
+    R_o, t_o = seq.object_rotations(), np.asarray(seq.object["transl"], float)
+    M, c = S.hand_to_object(R_o, t_o, rot, transl)
+    local = np.random.default_rng(0).normal(scale=0.1, size=(2, 7, 3))
+    got = S.apply_rigid(M, c, local)  # (T, 2, 7, 3)
+    for h in range(2):
+        ref = world_to_object(S.to_world(local[h], rot[:, h], transl[:, h]), R_o, t_o)
+        np.testing.assert_allclose(got[:, h], ref, atol=1e-15)
+    # a quarter turn about z of the object at (1, 0, 0), the wrist at the origin unrotated:
+    # world -> object is R_o (p - t_o), so the hand-frame point (1, 0, 0) maps to R_o (0, 0, 0)
+    qz = Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix()
+    M1, c1 = S.hand_to_object(qz[None], np.array([[1.0, 0, 0]]), np.eye(3)[None, None].repeat(2, 1),
+                              np.zeros((1, 2, 3)))
+    np.testing.assert_allclose(S.apply_rigid(M1, c1, np.array([[[1.0, 0, 0]]] * 2)),
+                               np.zeros((1, 2, 1, 3)), atol=1e-15)
+    np.testing.assert_allclose(S.apply_rigid(M1, c1, np.zeros((2, 1, 3)))[0, 0, 0],
+                               qz @ [-1.0, 0, 0], atol=1e-15)
+
+
+@pytest.mark.parametrize("kind", ["distance", "voxel", "none"])
+def test_stage_one_rigid_equals_stage_one(data, kind):
+    """The batched form (both hands per query, composed maps) gives stage_one's features up
+    to float rounding (measured: 0 on this fixture and on the bench scene's 300 frames)."""
+    lib, seq = data
+    wr = [S.wrist_frames(seq, s) for s in ("left", "right")]
+    M, c = S.hand_to_object(seq.object_rotations(), np.asarray(seq.object["transl"], float),
+                            np.stack([w[0] for w in wr], 1), np.stack([w[1] for w in wr], 1))
+    got = S.stage_one_rigid(lib.field(seq.obj_name), M, c, seq.hand_scale or 1.0, kind)
+    ref = S.stage_one(lib, seq, ambient=kind)
+    assert got.ambient.shape == ref.ambient.shape and got.ambient.dtype == np.float32
+    np.testing.assert_allclose(got.ambient, ref.ambient, atol=1e-6)
+    np.testing.assert_allclose(got.proximity, ref.proximity, atol=1e-6)
+    np.testing.assert_allclose(got.mean_dist, ref.mean_dist, atol=1e-9)
+
+
+def test_sensor_points_are_built_once_and_read_only():
+    a = S.ambient_points("left", 0.9)
+    assert a is S.ambient_points("left", 0.9) and not a.flags.writeable
+    amb, prox = S.hand_sensor_points(0.9)
+    np.testing.assert_array_equal(amb[0], a)
+    np.testing.assert_array_equal(prox[1], S.mean_hand_points("right", 0.9))
+    assert S.hand_sensor_points(0.9, "none")[0].shape == (2, 0, 3)
+    assert S.hand_sensor_points(0.9, "voxel")[0].shape == (2, np.prod(C.VOXEL_CELLS), 3)
+    with pytest.raises(Exception, match="ambient"):
+        S.hand_sensor_points(0.9, "sdf")
+    with pytest.raises(ValueError):
+        a[0, 0] = 1.0
