@@ -30,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="include the MuJoCo metrics (2 held frames per sequence and hand)")
     p.add_argument("--max-iv-frames", type=int, default=4, metavar="K",
                    help="exact intersection volumes per sequence and hand (default 4)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="processes evaluating the degraded sequences (default 1; the values "
+                        "do not depend on it)")
     p.set_defaults(func=run)
 
 
@@ -44,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     options = EvalOptions(physics=args.physics, max_physics_frames=2,
                           max_iv_frames=args.max_iv_frames)
     df = metric_validity(str(args.data), args.split, args.sequences, args.seed, options,
-                         progress=sys.stderr.isatty())
+                         progress=sys.stderr.isatty(), workers=args.workers)
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out / "validity.csv", df.to_csv(index=False))
     written = write_validity(args.out)

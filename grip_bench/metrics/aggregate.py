@@ -18,10 +18,10 @@ import math
 import os
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +33,8 @@ if TYPE_CHECKING:
     from concurrent.futures import ProcessPoolExecutor
 
     from tqdm import tqdm
+
+    from ..data.library import ObjectLibrary
 
 ALL_SPLITS = "all"
 
@@ -193,25 +195,43 @@ def run_task(task: Task) -> tuple:
     return rows, frames, dict(failures.reasons)
 
 
-def _progress(total: int, enabled: bool) -> tqdm:
+def _progress(total: int, enabled: bool, desc: str = "evaluate", unit: str = "seq") -> tqdm:
     from tqdm import tqdm
 
-    return tqdm(total=total, desc="evaluate", unit="seq", disable=not enabled, leave=False)
+    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, leave=False)
+
+
+def worker_library() -> ObjectLibrary:
+    """The object library of this process's evaluation worker (set by the pool initializer,
+    or in-process by :func:`map_tasks` with one worker)."""
+    if _LIBRARY is None:
+        raise RuntimeError("not inside an evaluation worker (metrics.aggregate.map_tasks)")
+    return _LIBRARY
 
 
 def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool,
               mesh_options=None) -> list[tuple]:
     """Results of ``tasks`` in task order; ``workers`` > 1 uses a spawn process pool."""
+    return map_tasks(run_task, tasks, gt_dir, workers, progress, mesh_options)
+
+
+def map_tasks(fn: Callable[[Any], Any], tasks: list, gt_dir: Path, workers: int,
+              progress: bool, mesh_options=None, desc: str = "evaluate",
+              unit: str = "seq") -> list:
+    """``[fn(t) for t in tasks]`` in task order, ``fn`` a module-level function that reads
+    the objects through :func:`worker_library`; ``workers`` > 1 runs them in the kept spawn
+    pool of ``gt_dir`` (:func:`worker_pool`). Both paths run torch on one thread, so the
+    values do not depend on ``workers``."""
     import torch
 
     results: list = [None] * len(tasks)
-    bar = _progress(len(tasks), progress)
+    bar = _progress(len(tasks), progress, desc, unit)
     if workers <= 1 or len(tasks) <= 1:
         threads = torch.get_num_threads()
         try:  # one thread, as in the workers: the same floating-point path for any --workers
             _init_worker(str(gt_dir), mesh_options)
             for i, task in enumerate(tasks):
-                results[i] = run_task(task)
+                results[i] = fn(task)
                 bar.update()
         finally:
             torch.set_num_threads(threads)
@@ -221,7 +241,7 @@ def run_tasks(tasks: list[Task], gt_dir: Path, workers: int, progress: bool,
     from concurrent.futures.process import BrokenProcessPool
 
     pool = worker_pool(workers, gt_dir, mesh_options)
-    futures = {pool.submit(run_task, t): i for i, t in enumerate(tasks)}
+    futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
     try:
         for fut in as_completed(futures):
             results[futures[fut]] = fut.result()

@@ -394,7 +394,8 @@ def metric_validity(data_dir: str, split: str = "test", sequences: int = 4, seed
                     options: EvalOptions | None = None,
                     degradations: Seq[str] | None = None,
                     progress: bool = False,
-                    levels: Mapping[str, Seq[float]] | None = None) -> pd.DataFrame:
+                    levels: Mapping[str, Seq[float]] | None = None,
+                    workers: int = 1) -> pd.DataFrame:
     """Each metric's response to each degradation level on ``sequences`` ground-truth
     sequences of ``split`` (the first ones in file order); ``levels`` overrides the
     registry's levels (SI) of some degradations; ``options`` default: physics off.
@@ -403,15 +404,17 @@ def metric_validity(data_dir: str, split: str = "test", sequences: int = 4, seed
     value (mean over sequences of the per-sequence mean of the hands), ci_low, ci_high (95 %
     object-stratified bootstrap over sequences, seeded by ``seed``), n_sequences, expected
     ("up" / "down" / "flat" / ""); rows in registry order of degradations and metrics.
+    ``workers`` > 1 evaluates the (degradation, level, sequence) jobs in the evaluation's
+    process pool (``metrics.aggregate.map_tasks``): the same values as one worker.
     """
+    from pathlib import Path
+
     import pandas as pd
 
-    from ..core.progress import bar
-    from ..data.grab_io import read_grab
-    from ..data.library import ObjectLibrary
     from ..data.splits import sequences_in_split
     from ..results.stats import sequence_ci
-    from .evaluate import EvalOptions, evaluate_sequence
+    from .aggregate import map_tasks
+    from .evaluate import EvalOptions
     from .registry import METRICS
 
     options = options or EvalOptions(physics=False)
@@ -421,15 +424,11 @@ def metric_validity(data_dir: str, split: str = "test", sequences: int = 4, seed
     files = sequences_in_split(data_dir, split)[:sequences]
     if not files:
         raise InputError(f"no ground-truth sequences in split '{split}'", str(data_dir))
-    library = ObjectLibrary(data_dir)
-    gts = [read_grab(f) for f in files]
-    rows = []
-    jobs = [(DEGRADATIONS[d], lv, gt) for d, lvs in chosen.items() for lv in lvs for gt in gts]
-    for d, level, gt in bar(jobs, "metric validity", progress, unit="evaluation"):
-        pred = gt if level == 0 else d.apply(gt, level, library, seed)
-        got, _ = evaluate_sequence(pred, gt, library, options=options)
-        rows += [{"degradation": d.id, "level": level * d.scale, **asdict(r)} for r in got]
-    df = pd.DataFrame(rows)
+    jobs = [(d, lv, str(f), seed, options) for d, lvs in chosen.items() for lv in lvs
+            for f in files]
+    parts = map_tasks(_job_rows, jobs, Path(data_dir), max(1, int(workers)), progress,
+                      desc="metric validity", unit="evaluation")
+    df = pd.DataFrame([row for part in parts for row in part])
     out = []
     for (deg, level, metric), g in df.groupby(["degradation", "level", "metric"], sort=False):
         ci = sequence_ci(g, seed=seed)
@@ -437,6 +436,21 @@ def metric_validity(data_dir: str, split: str = "test", sequences: int = 4, seed
                     "unit": METRICS.get(metric).unit, "value": ci.mean, "ci_low": ci.lo,
                     "ci_high": ci.hi, "n_sequences": ci.n, "expected": claim(deg, metric)})
     return pd.DataFrame(out)
+
+
+def _job_rows(job: tuple) -> list[dict]:
+    """Rows of one (degradation id, level, ground-truth file, seed, options) job: the
+    degraded sequence (the ground truth itself at level 0) evaluated against the ground
+    truth (runs in an evaluation worker: ``metrics.aggregate.map_tasks``)."""
+    from ..data.grab_io import read_grab
+    from .aggregate import worker_library
+    from .evaluate import evaluate_sequence
+
+    d_id, level, path, seed, options = job
+    d, library, gt = DEGRADATIONS[d_id], worker_library(), read_grab(path)
+    pred = gt if level == 0 else d.apply(gt, level, library, seed)
+    got, _ = evaluate_sequence(pred, gt, library, options=options)
+    return [{"degradation": d.id, "level": level * d.scale, **asdict(r)} for r in got]
 
 
 def check_validity(df: pd.DataFrame) -> list[str]:

@@ -15,8 +15,11 @@ VALIDITY_FILE = "validity.csv"
 
 def measure_validity(st: RunState, unit: Unit, tmp: Path) -> dict:
     """Degrade the first ``sequences`` test sequences at every level and evaluate each level
-    against the ground truth; the options, levels, seed and split are the unit's inputs."""
+    against the ground truth; the options, levels, seed and split are the unit's inputs.
+    The evaluations run in the evaluation stage's process pool (the same values for any
+    number of workers, so ``--workers`` is not part of the key)."""
     from ...core.io import atomic_write_text
+    from ...metrics.aggregate import default_workers
     from ...metrics.evaluate import EvalOptions
     from ...metrics.validity import check_validity, metric_validity
 
@@ -26,6 +29,7 @@ def measure_validity(st: RunState, unit: Unit, tmp: Path) -> dict:
                              for k, v in p["options"].items()})
     df = metric_validity(str(st.data_dir(p["data"])), p["split"], int(p["sequences"]),
                          int(p["seed"]), options, degradations=list(p["levels"]),
-                         progress=st.cfg.progress, levels=p["levels"])
+                         progress=st.cfg.progress, levels=p["levels"],
+                         workers=st.cfg.workers or default_workers())
     atomic_write_text(tmp / VALIDITY_FILE, df.to_csv(index=False))
     return {"sequences": int(df["n_sequences"].max()), "broken_claims": check_validity(df)}
