@@ -101,45 +101,55 @@ def _posed(member: _Member, seq, side: str) -> tuple[np.ndarray, np.ndarray]:
 
 def score_pairs(data_dir: str | os.PathLike,
                 predictions: dict[str, str | os.PathLike] | None = None,
-                model_path: str | None = None) -> pd.DataFrame:
+                model_path: str | None = None, workers: int = 1) -> pd.DataFrame:
     """One row per (method, pair): the ``SCORE_COLUMNS`` (SI: m, shares) and the pair's id,
     family, variant, side and grasp kind. ``predictions``: method -> prediction folder (GRAB
-    layout, the dataset's relative names); the references (``REFERENCES``) come first."""
-    from ..data.grab_io import read_grab
-    from ..data.library import ObjectLibrary
+    layout, the dataset's relative names); the references (``REFERENCES``) come first.
+    ``workers`` > 1 scores the pairs in the evaluation's process pool
+    (``metrics.aggregate.map_tasks``): the same rows, in the same order."""
+    from ..metrics.aggregate import map_tasks
     from ..metrics.evaluate import EvalOptions
 
     data_dir = Path(data_dir)
     pairs = read_pairs(data_dir)
-    predictions = dict(predictions or {})
+    predictions = {k: str(v) for k, v in (predictions or {}).items()}
     clash = sorted(set(predictions) & set(REFERENCES))
     if clash:
         raise InputError(f"{clash} name reference rows; name the method otherwise", "--pred")
     for name, folder in predictions.items():
         if not Path(folder).is_dir():
             raise InputError("no such prediction folder", f"{name}={folder}")
-    library = ObjectLibrary(data_dir)
     options = EvalOptions(iv=False, physics=False, model_path=model_path)
+    jobs = [(str(data_dir), p, predictions, options) for p in pairs]
+    parts = map_tasks(_pair_rows, jobs, data_dir, max(1, int(workers)), False)
+    return pd.DataFrame([row for part in parts for row in part])
+
+
+def _pair_rows(job: tuple) -> list[dict]:
+    """The rows of one pair (references first, then each method), in an evaluation worker."""
+    from ..data.grab_io import read_grab
+    from ..metrics.aggregate import worker_library
+
+    data_dir, p, predictions, options = job
+    data_dir, library, side = Path(data_dir), worker_library(), p["side"]
+    a = _member(data_dir, p["a"], side, library, options)
+    b = _member(data_dir, p["b"], side, library, options)
+    if a.seq.n_frames != b.seq.n_frames:
+        raise InputError(f"members have {a.seq.n_frames} and {b.seq.n_frames} frames",
+                         f"pairs.json: {p['id']}")
+    preds = {"gt": ((a.verts, a.tips), (b.verts, b.tips)),
+             "same-hands": ((a.verts, a.tips), _posed(b, a.seq, side))}
+    for name, folder in predictions.items():
+        pa = read_grab(Path(folder) / p["a"])
+        pb = read_grab(Path(folder) / p["b"])
+        preds[name] = (_posed(a, pa, side), _posed(b, pb, side))
     rows = []
-    for p in pairs:
-        side = p["side"]
-        a = _member(data_dir, p["a"], side, library, options)
-        b = _member(data_dir, p["b"], side, library, options)
-        if a.seq.n_frames != b.seq.n_frames:
-            raise InputError(f"members have {a.seq.n_frames} and {b.seq.n_frames} frames",
-                             f"pairs.json: {p['id']}")
-        preds = {"gt": ((a.verts, a.tips), (b.verts, b.tips)),
-                 "same-hands": ((a.verts, a.tips), _posed(b, a.seq, side))}
-        for name, folder in predictions.items():
-            pa = read_grab(Path(folder) / p["a"])
-            pb = read_grab(Path(folder) / p["b"])
-            preds[name] = (_posed(a, pa, side), _posed(b, pb, side))
-        for name, ((va, ta), (vb, tb)) in preds.items():
-            s = pair_scores(a.verts, b.verts, va, vb, (a.tips, b.tips, ta, tb), a.held, b.held)
-            rows.append({"method": name, "pair": p["id"], "family": p["family"],
-                         "variant": p.get("variant", ""), "side": side,
-                         "grasp_kind": p.get("grasp_kind", ""), **s})
-    return pd.DataFrame(rows)
+    for name, ((va, ta), (vb, tb)) in preds.items():
+        s = pair_scores(a.verts, b.verts, va, vb, (a.tips, b.tips, ta, tb), a.held, b.held)
+        rows.append({"method": name, "pair": p["id"], "family": p["family"],
+                     "variant": p.get("variant", ""), "side": side,
+                     "grasp_kind": p.get("grasp_kind", ""), **s})
+    return rows
 
 
 # --- the table ------------------------------------------------------------------------------

@@ -23,12 +23,14 @@ def score_sensitivity(st: RunState, unit: Unit, tmp: Path) -> dict:
     (``predictions``: method -> prediction unit key) and the reference rows; the rows
     (SI units, ``report.sensitivity.SCORE_COLUMNS``) go to ``tmp/sensitivity_pairs.csv``.
     A split without pairs (every twin rejected) gives a file with a header only."""
+    from ...metrics.aggregate import default_workers
     from ...report.sensitivity import read_pairs_doc, score_pairs, write_pairs_csv
 
     p = unit.params
     data = st.data_dir(p["data"])
     n_pairs = len(read_pairs_doc(data)["pairs"])
     rows = score_pairs(data, {m: st.unit_dir(k) for m, k in p["predictions"].items()},
-                       p["inputs"]["model_path"]) if n_pairs else None
+                       p["inputs"]["model_path"],
+                       workers=st.cfg.workers or default_workers()) if n_pairs else None
     write_pairs_csv(tmp / PAIRS_FILE, rows)
     return {"pairs": n_pairs, "methods": sorted(p["predictions"])}
