@@ -102,7 +102,7 @@ from ..report.write import (
 )
 from ..results.layout import CLEAN, MAIN_SPLIT
 from .cache import Cache
-from .execute import RunLog, RunState, run_stage
+from .execute import RunLog, RunState, run_stage, stage_workers
 from .plan import RunConfig, Unit, build_plan
 from .stages.counterfactual import make_counterfactual
 from .stages.data import make_dataset
@@ -296,7 +296,7 @@ def assemble_viewer(st: RunState) -> None:
                    for i, (m, dirs) in enumerate(sorted(preds.items()))}
         pages = write_run_pages(out, read_results(out / "results.csv"), sources, n,
                                 frames=frames, split=MAIN_SPLIT, model_path=st.cfg.model_path,
-                                max_frames=RUN_MAX_FRAMES)
+                                max_frames=RUN_MAX_FRAMES, workers=stage_workers(st.cfg))
     if pages:
         st.log(f"viewer: {len(pages)} pages in {out / 'viewer'} "
                f"({sum(p['bytes'] for p in pages) / 1e6:.1f} MB)")

@@ -626,35 +626,68 @@ def write_run_pages(out: str | os.PathLike, results: pd.DataFrame,
                     sources: Mapping[str, tuple[Path, Path]], n: int, *,
                     frames: pd.DataFrame | None = None, split: str = "test",
                     model_path: str | os.PathLike | None = None,
-                    max_frames: int | None = None) -> list[dict]:
+                    max_frames: int | None = None, workers: int = 1) -> list[dict]:
     """A run's pages: for each method of ``sources`` (``{method: (prediction folder, ground
     truth folder)}``, both GRAB layout, clean split), the ``n`` sequences of
     :func:`choose_sequences`, ground truth beside the method; writes the index. ``n = 0``
-    removes the pages of an earlier run. Returns the index entries."""
-    from ..data.grab_io import read_grab
-
+    removes the pages of an earlier run. ``workers`` > 1 writes the pages in that many
+    processes (each page is packed alone: the same bytes). Returns the index entries."""
     out = Path(out)
     entries: list[dict] = []
+    jobs: list[tuple] = []
     for method in sorted(sources):
         pred_dir, gt_dir = sources[method]
         for pick in choose_sequences(results, method, n, split):
             seq_id = pick["sequence"]
-            gt = read_grab(gt_dir / "grab" / f"{seq_id}.npz")
-            pred = read_grab(pred_dir / "grab" / f"{seq_id}.npz")
-            tracks = [Track("ground truth", gt, sequence_metrics(results, "gt", seq_id, split)),
-                      Track(method, pred, sequence_metrics(results, method, seq_id, split))]
+            metrics = {m: sequence_metrics(results, m, seq_id, split) for m in ("gt", method)}
+            per_frame = None
             if frames is not None:
-                for tr, m in zip(tracks, ("gt", method), strict=True):
-                    tr.frame_metrics = frame_metrics(frames, m, seq_id, gt.n_frames, split)
+                n_frames = _n_frames(gt_dir / "grab" / f"{seq_id}.npz")
+                per_frame = {m: frame_metrics(frames, m, seq_id, n_frames, split)
+                             for m in ("gt", method)}
             name = page_name(method, seq_id)
-            why = ", ".join(pick["why"])
-            path = write_viewer(out / VIEWER_DIR / name, tracks, model_path=model_path,
-                                max_frames=max_frames,
-                                title=f"{method} vs ground truth: {seq_id} ({why} "
-                                      f"{pick['metric']})")
-            entries.append({**pick, "method": method, "page": name,
-                            "bytes": path.stat().st_size})
+            title = (f"{method} vs ground truth: {seq_id} ({', '.join(pick['why'])} "
+                     f"{pick['metric']})")
+            jobs.append((str(out / VIEWER_DIR / name), str(gt_dir / "grab" / f"{seq_id}.npz"),
+                         str(pred_dir / "grab" / f"{seq_id}.npz"), method, metrics, per_frame,
+                         model_path, max_frames, title))
+            entries.append({**pick, "method": method, "page": name})
+    for entry, size in zip(entries, _map(_write_page, jobs, workers), strict=True):
+        entry["bytes"] = size
     remove_pages(out, keep=[e["page"] for e in entries])
     if entries:
         write_index(out, entries)
     return entries
+
+
+def _n_frames(path: Path) -> int:
+    from ..data.grab_io import read_grab
+
+    return read_grab(path).n_frames
+
+
+def _write_page(job: tuple) -> int:
+    """Write one run page (a :func:`write_run_pages` job); returns its size in bytes."""
+    from ..data.grab_io import read_grab
+
+    path, gt_file, pred_file, method, metrics, per_frame, model_path, max_frames, title = job
+    gt, pred = read_grab(gt_file), read_grab(pred_file)
+    tracks = [Track("ground truth", gt, metrics["gt"]), Track(method, pred, metrics[method])]
+    if per_frame is not None:
+        for tr, m in zip(tracks, ("gt", method), strict=True):
+            tr.frame_metrics = per_frame[m]
+    written = write_viewer(path, tracks, model_path=model_path, max_frames=max_frames,
+                           title=title)
+    return written.stat().st_size
+
+
+def _map(fn: Any, jobs: list, workers: int) -> list:
+    """``[fn(j) for j in jobs]``, in a spawn pool of ``workers`` processes when > 1."""
+    if workers <= 1 or len(jobs) <= 1:
+        return [fn(j) for j in jobs]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)),
+                             mp_context=mp.get_context("spawn")) as pool:
+        return list(pool.map(fn, jobs))
