@@ -201,3 +201,76 @@ def test_sensor_points_are_built_once_and_read_only():
         S.hand_sensor_points(0.9, "sdf")
     with pytest.raises(ValueError):
         a[0, 0] = 1.0
+
+
+@pytest.mark.parametrize("n", [1024, 99, 1014, 97, 1])
+def test_apply_rigid_is_the_plain_broadcast_bit_for_bit(n):
+    """The in-place tiled ``+ c`` gives ``matmul + c`` exactly, for point counts with many,
+    few (97 is prime) or one divisor; other shapes and dtypes take the plain broadcast."""
+    rng = np.random.default_rng(n)
+    M = Rotation.random(14, random_state=n).as_matrix().reshape(7, 2, 3, 3)
+    c, local = rng.normal(size=(7, 2, 3)), rng.normal(scale=0.1, size=(2, n, 3))
+    ref = np.matmul(local, np.swapaxes(M, -1, -2)) + c[..., None, :]
+    np.testing.assert_array_equal(S.apply_rigid(M, c, local), ref)
+    c32 = c.astype(np.float32)
+    np.testing.assert_array_equal(S.apply_rigid(M, c32, local),
+                                  np.matmul(local, np.swapaxes(M, -1, -2)) + c32[..., None, :])
+    np.testing.assert_array_equal(S.apply_rigid(M, c[0], local),  # c (2, 3) broadcast
+                                  np.matmul(local, np.swapaxes(M, -1, -2)) + c[0][:, None, :])
+
+
+def _maps_around(centre, T, rng, reach=0.8):
+    """T random wrist maps (M (T, 2, 3, 3), c (T, 2, 3)) whose hands sit from 0 to ``reach``
+    m from ``centre``, so both hands' points fall in every grid of the field and beyond."""
+    M = Rotation.random(2 * T, random_state=rng.integers(1 << 31)).as_matrix()
+    d = rng.normal(size=(T, 2, 3))
+    d *= np.linspace(0.0, reach, T)[:, None, None] / np.linalg.norm(d, axis=2, keepdims=True)
+    return M.reshape(T, 2, 3, 3), centre + d
+
+
+def test_rigid_boxes_hold_the_points():
+    """The moved box-and-ball bounds hold every moved point, also for maps that are not
+    rotations (scaled, sheared), and are no wider than the ball's box."""
+    rng = np.random.default_rng(4)
+    for ambient in ("distance", "voxel"):
+        for local, bounds in zip(S.hand_sensor_points(1.0, ambient),
+                                 S._sensor_bounds(1.0, ambient), strict=True):
+            M, c = _maps_around(np.array([2.0, -1.0, 0.5]), 50, rng)
+            M[:10] *= rng.uniform(0.5, 2.0, (10, 2, 1, 1))
+            M[10:20] += rng.normal(scale=0.3, size=(10, 2, 3, 3))
+            q = S.apply_rigid(M, c, local)
+            lo, hi = S._rigid_boxes(M, c, bounds)
+            assert (q >= lo[:, :, None]).all() and (q <= hi[:, :, None]).all()
+            centre, radius = bounds[2], bounds[3]
+            assert np.allclose(np.linalg.norm(local - centre[:, None], axis=2).max(1), radius)
+            width = (hi - lo)[20:]  # rotations: at most the ball's diameter (+ slack)
+            assert (width <= 2 * radius[None, :, None] * (1 + 1e-6)).all()
+
+
+@pytest.mark.parametrize("kind", ["distance", "voxel", "none"])
+def test_stage_one_rigid_grouped_is_the_per_point_path_bit_for_bit(data, kind, monkeypatch):
+    """Group boxes only skip box tests: the features equal, bit for bit, those of one
+    per-point far="coarse" query of the same points, with the grouped path forced on
+    (proximity included) and off."""
+    lib, seq = data
+    field = lib.field(seq.obj_name)
+    M, c = _maps_around(np.zeros(3), 40, np.random.default_rng(9))
+    M[5] = np.nan  # a frame without wrists: its boxes are NaN, its points per-point
+    amb_pts, prox_pts = S.hand_sensor_points(1.0, kind)
+
+    def per_point(local, exact_cells):
+        q = S.apply_rigid(M, c, local).reshape(-1, 3)
+        return field.signed_distance(q, far="coarse", exact_cells=exact_cells).reshape(40, 2, -1)
+
+    d = np.maximum(per_point(prox_pts, True), 0.0)
+    for min_points in (0, 10**9):
+        monkeypatch.setattr(S, "_GROUPED_MIN_POINTS", min_points)
+        got = S.stage_one_rigid(field, M, c, 1.0, kind)
+        np.testing.assert_array_equal(got.proximity,
+                                      S.attention(d, C.PROXIMITY_DECAY).astype(np.float32))
+        np.testing.assert_array_equal(got.mean_dist, d.mean(axis=2))
+        if kind != "none":
+            sd = per_point(amb_pts, False)
+            ref = (S.attention(np.maximum(sd, 0.0), C.AMBIENT_DECAY) if kind == "distance"
+                   else sd < 0).astype(np.float32)
+            np.testing.assert_array_equal(got.ambient, ref)
