@@ -270,6 +270,21 @@ def test_render_all_links_table_rows_relative_to_their_folder(tmp_path):
     assert "viewer/" not in (tmp_path / "tables" / "table4_grasp.md").read_text()
 
 
+def test_run_pages_in_two_processes_are_the_serial_bytes(small, tmp_path):
+    """write_run_pages(workers=2) packs each page in its own process: same pages, same
+    index (the runner passes --workers)."""
+    root, _, _ = small
+    df = pd.concat([_results({"s1/mug_lift_1": 4.5}, method=m) for m in ("m", "k", "gt")])
+    sources = {m: (root / "pred", root / "gt") for m in ("m", "k")}
+    outs = {}
+    for w in (1, 2):
+        out = tmp_path / f"w{w}"
+        entries = V.write_run_pages(out, df, sources, 1, workers=w)
+        assert [e["method"] for e in entries] == ["k", "m"]
+        outs[w] = {p.name: p.read_bytes() for p in sorted((out / "viewer").iterdir())}
+    assert len(outs[1]) == 3 and outs[1] == outs[2]  # two pages and index.json
+
+
 def test_index_round_trip_and_removal(tmp_path):
     (tmp_path / "viewer").mkdir()
     (tmp_path / "viewer" / "m__s1_a.html").write_text("x")
