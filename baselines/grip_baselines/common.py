@@ -8,8 +8,9 @@ x-mirror of the right one, so a left hand is brought into the right hand's frame
 conventions live in :mod:`grip_bench.core.frames` (re-exported here as ``SIDES``,
 ``MIRROR``, ``mirror_pose``, ``object_pose`` for the methods' ``U.`` spelling).
 
-Devices: :func:`resolve_device` turns ``--device`` into a ``torch.device`` (an
-:class:`InputError` for an unknown or unavailable one, never a silent CPU fallback);
+Devices: :func:`resolve_device` (from :mod:`grip_bench.nn.ddp`, shared with GRIP's training)
+turns ``--device`` into a ``torch.device`` (an :class:`InputError` for an unknown or
+unavailable one, never a silent CPU fallback);
 training builds its networks there and :meth:`TrainedMethod.load_checkpoint` moves the
 loaded networks there. Geometry (distance fields, ray casts, BPS) stays numpy on the CPU.
 """
@@ -38,6 +39,7 @@ from grip_bench.core.frames import (  # noqa: F401  (U.SIDES, U.MIRROR, ... in t
 from grip_bench.core.threads import single_thread  # noqa: F401  (U.single_thread in the methods)
 from grip_bench.methods.api import TrainContext
 from grip_bench.nn import ddp
+from grip_bench.nn.ddp import resolve_device
 
 if TYPE_CHECKING:
     from grip_bench.bodies.hand import ProceduralHand
@@ -48,34 +50,6 @@ Config = TypeVar("Config")
 Device = str | torch.device
 
 # ----------------------------------------------------------------------------- devices
-
-
-def resolve_device(device: Device) -> torch.device:
-    """``--device`` as a ``torch.device``: ``cpu``, ``cuda`` or ``cuda:N`` (or ``mps``).
-
-    An unknown device, or one this machine does not have, is an :class:`InputError`: a
-    run asked for the GPU must not silently train on the CPU.
-    """
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError, ValueError):
-        raise InputError(f"unknown device {device!r} (cpu or cuda)", "--device") from None
-    if dev.type == "cpu":
-        return dev
-    if dev.type == "cuda":
-        if not torch.cuda.is_available():
-            raise InputError("CUDA is not available on this machine (use --device cpu)",
-                             "--device")
-        if dev.index is not None and dev.index >= torch.cuda.device_count():
-            raise InputError(f"no CUDA device {dev.index} on this machine "
-                             f"({torch.cuda.device_count()} found)", "--device")
-        return dev
-    if dev.type == "mps":
-        if not torch.backends.mps.is_available():
-            raise InputError("MPS is not available on this machine (use --device cpu)",
-                             "--device")
-        return dev
-    raise InputError(f"unsupported device {device!r} (cpu or cuda)", "--device")
 
 
 def device_of(module: torch.nn.Module) -> torch.device:
@@ -172,9 +146,7 @@ class TrainedMethod:
         """Fit and save. In a DDP job (:mod:`grip_bench.nn.ddp`) every rank fits, on its
         own GPU for ``cuda`` (``cuda:LOCAL_RANK``), only rank 0 prints and writes."""
         d = ddp.current()
-        device = resolve_device(ctx.device)
-        if d.active and device.type == "cuda":
-            device = resolve_device(f"cuda:{d.local_rank}")
+        device = ddp.train_device(ctx.device, d)
         cfg = section_config(self.config_cls, ctx.profile, self.section)
         if hasattr(cfg, "batch_size"):  # a method without batches (nearest) fits on each rank
             ddp.check_batch(cfg.batch_size, d, f"{self.section}.batch_size")
@@ -233,6 +205,42 @@ def train_sequences(data_dir: Path | str, limit: int = 0, seed: int = 0) -> list
     if not seqs:
         raise InputError("the train split has no sequences", data_dir)
     return seqs
+
+
+class KeptFields:
+    """An :class:`ObjectLibrary` view that keeps every distance field it hands out.
+
+    The library keeps its 64 most recently used fields (``lru_cache(maxsize=64)``). A
+    training loop that cycles through more objects than that (the 72 train objects of the
+    default SynthGRAB: GrabNet's grasp-frame search and every GrabNet batch, ManipNet's
+    per-sequence features) evicts each field before it comes round again, so every visit
+    rebuilt it from the geometry cache (~45 ms each, thousands of times per training), and
+    objects held elsewhere (ManipNet's per-sequence features) were held twice. Fields are
+    a few MB each; keeping all of a split's costs less than the LRU's 64. The fields are
+    the library's own (the same arrays), so results do not change. Everything else
+    (``mesh``, ``data_dir``, ...) is the wrapped library's.
+    """
+
+    def __init__(self, library: ObjectLibrary) -> None:
+        self._library = library
+        self._fields: dict[str, Any] = {}
+
+    def field(self, name: str) -> Any:
+        """The library's distance field of object ``name``, built once per view."""
+        if name not in self._fields:
+            self._fields[name] = self._library.field(name)
+        return self._fields[name]
+
+    def __getattr__(self, attr: str) -> Any:
+        return getattr(self._library, attr)
+
+
+def train_library(data_dir: Path | str) -> ObjectLibrary:
+    """The :class:`ObjectLibrary` of a training run over ``data_dir``, keeping every field
+    (:class:`KeptFields`)."""
+    from grip_bench.data.library import ObjectLibrary
+
+    return KeptFields(ObjectLibrary(data_dir))  # type: ignore[return-value]
 
 
 # ----------------------------------------------------------------------------- hands

@@ -461,15 +461,13 @@ def train_grabnet(
     ``w_penetration``); RefineNet sees noisy ground truth and, for a share
     ``refine_coarse_share`` of each batch, CoarseNet's own reconstructions.
     """
-    from grip_bench.data.library import ObjectLibrary
-
     torch.manual_seed(seed)
     rng, gen = np.random.default_rng(seed), U.seeded(seed)
     d = ddp.current()
     # DDP: the latent samples, noise and CoarseNet rows of a rank's share come from the
     # rank's own streams; ``rng`` only orders the global batches, the same on every rank
     row_rng = np.random.default_rng(U.rank_seed(seed, d)) if d.active else rng
-    library = ObjectLibrary(data_dir)
+    library = U.train_library(data_dir)
     s = collect_samples(
         U.train_sequences(data_dir, cfg.max_sequences, seed), library, cfg, tied, seed
     )

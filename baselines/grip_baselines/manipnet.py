@@ -44,6 +44,8 @@ __all__ = [
     "ManipNetInputs",
     "hand_proximity_fn",
     "manipnet_features",
+    "motion_features",
+    "pose_features",
     "voxel_centres",
 ]
 
@@ -198,13 +200,37 @@ def manipnet_features(
     output when rolling out). ``sdf`` works in the object frame (e.g.
     ``DistanceField.signed_distance``); ``proximity_fn`` poses the proximity vertices.
     Trajectory frames past either end repeat the end frame.
+
+    = :func:`motion_features` (what the wrist and object motion give) + :func:`pose_features`
+    (what the previous pose gives), each computed per frame.
     """
     cfg = cfg or ManipNetConfig()
+    t = np.arange(len(wrist_pos)) if frames is None else np.asarray(frames)
+    traj, voxels = motion_features(wrist_rot, wrist_pos, obj_rot, obj_pos, sdf, t, cfg, cell,
+                                   voxel_centre)
+    distances, prev6 = pose_features(wrist_rot, wrist_pos, obj_rot, obj_pos, prev_hand_pose,
+                                     sdf, proximity_fn, t, cfg, dist_clip)
+    return ManipNetInputs(traj, voxels, distances, prev6)
+
+
+def motion_features(
+    wrist_rot: np.ndarray,
+    wrist_pos: np.ndarray,
+    obj_rot: np.ndarray,
+    obj_pos: np.ndarray,
+    sdf: SdfFn,
+    t: np.ndarray,
+    cfg: ManipNetConfig,
+    cell: float = MANIPNET_VOXEL_CELL,
+    voxel_centre: tuple[float, float, float] | np.ndarray = MANIPNET_VOXEL_CENTER,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The inputs of frames ``t (F,)`` that the previous pose does not change: trajectory
+    ``(F, past+future, 9)`` and occupancy ``(F, r, r, r)`` (arguments as
+    :func:`manipnet_features`). Every value is a function of its own frame alone, so a
+    rollout computes them for all frames at once (the same numbers)."""
     wr, wp = np.asarray(wrist_rot, np.float64), np.asarray(wrist_pos, np.float64)
     orot, opos = np.asarray(obj_rot, np.float64), np.asarray(obj_pos, np.float64)
-    prev = np.asarray(prev_hand_pose, np.float64)
     n = len(wp)
-    t = np.arange(n) if frames is None else np.asarray(frames)
     offsets = np.r_[np.arange(-cfg.n_past, 0), np.arange(1, cfg.n_future + 1)]
     idx = np.clip(t[:, None] + offsets, 0, n - 1)  # (F, past+future)
     rt = wr[t]  # (F, 3, 3) current wrist
@@ -216,7 +242,28 @@ def manipnet_features(
     cells = voxel_centres(cfg.voxel_res, cell, voxel_centre)  # (r, r, r, 3)
     world = np.einsum("fij,abcj->fabci", rt, cells) + wp[t][:, None, None, None]
     voxels = (np.asarray(sdf(_to_object(world, orot[t], opos[t]))) < 0).astype(np.float64)
+    return traj, voxels
 
+
+def pose_features(
+    wrist_rot: np.ndarray,
+    wrist_pos: np.ndarray,
+    obj_rot: np.ndarray,
+    obj_pos: np.ndarray,
+    prev_hand_pose: np.ndarray,
+    sdf: SdfFn,
+    proximity_fn: ProximityFn,
+    t: np.ndarray,
+    cfg: ManipNetConfig,
+    dist_clip: float = MANIPNET_DIST_CLIP,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The inputs of frames ``t (F,)`` that come from the previous pose: clipped distances
+    ``(F, 1+future, P)`` (m) and the previous pose in 6D ``(F, J, 6)`` (arguments as
+    :func:`manipnet_features`)."""
+    wr, wp = np.asarray(wrist_rot, np.float64), np.asarray(wrist_pos, np.float64)
+    orot, opos = np.asarray(obj_rot, np.float64), np.asarray(obj_pos, np.float64)
+    prev = np.asarray(prev_hand_pose, np.float64)
+    n = len(wp)
     # Distances of the previous pose's proximity vertices, on the wrist at t and ahead.
     future = np.clip(t[:, None] + np.arange(cfg.n_future + 1), 0, n - 1)  # (F, 1+future)
     m = future.reshape(-1)
@@ -224,7 +271,7 @@ def manipnet_features(
     prox = np.asarray(proximity_fn(wr[m], wp[m], pose_rep))  # (F*(1+future), P, 3)
     d = np.asarray(sdf(_to_object(prox, orot[m], opos[m])))
     distances = np.clip(d, -dist_clip, dist_clip).reshape(len(t), cfg.n_future + 1, -1)
-    return ManipNetInputs(traj, voxels, distances, _axis_angle_6d(prev[t]))
+    return distances, _axis_angle_6d(prev[t])
 
 
 def hand_proximity_fn(hand: torch.nn.Module) -> ProximityFn:

@@ -30,7 +30,13 @@ from grip_bench.nn import ddp
 from grip_bench.nn.terms import penetration_depth, proximity_attention, proximity_l1
 
 from . import common as U
-from .manipnet import ManipNet, ManipNetConfig, manipnet_features
+from .manipnet import (
+    ManipNet,
+    ManipNetConfig,
+    manipnet_features,
+    motion_features,
+    pose_features,
+)
 
 if TYPE_CHECKING:
     from grip_bench.bodies.hand import ProceduralHand
@@ -123,6 +129,32 @@ class SeqData:
         )
         return f.torch(device=device)
 
+    def motion(self, cfg: ManipNetConfig, device: U.Device = "cpu") -> tuple[torch.Tensor, ...]:
+        """Trajectory ``(T, past+future, 9)`` and occupancy ``(T, r, r, r)`` of every frame,
+        float32 on ``device``: the inputs a rollout does not change, computed once."""
+        t = np.arange(len(self.pose))
+        arrays = motion_features(self.wrist_rot, self.wrist_pos, self.obj_rot, self.obj_pos,
+                                 self.sdf, t, cfg)
+        return tuple(torch.as_tensor(a, dtype=torch.float32, device=device) for a in arrays)
+
+    def pose_inputs(
+        self, prev: np.ndarray, frames: np.ndarray | list[int], cfg: ManipNetConfig,
+        device: U.Device = "cpu",
+    ) -> tuple[torch.Tensor, ...]:
+        """Distances ``(F, 1+future, P)`` and previous pose ``(F, J, 6)`` of ``frames``,
+        float32 on ``device``; ``prev (T, 15, 3)`` = previous pose of each frame."""
+        arrays = pose_features(self.wrist_rot, self.wrist_pos, self.obj_rot, self.obj_pos,
+                               prev, self.sdf, self.prox, np.asarray(frames), cfg)
+        return tuple(torch.as_tensor(a, dtype=torch.float32, device=device) for a in arrays)
+
+
+def _compact(feats: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
+    """Training features with the occupancy grid ``(F, r, r, r)`` stored as bool: it holds
+    0 / 1 only, which :meth:`ManipNet.forward` turns back into the same floats, and at
+    float32 it was a quarter of the features' memory (every train frame is kept)."""
+    traj, voxels, distances, prev = feats
+    return traj, voxels.bool(), distances, prev
+
 
 def _cat(parts: list[tuple[torch.Tensor, ...]]) -> list[torch.Tensor]:
     return [torch.cat(x) for x in zip(*parts, strict=True)]
@@ -148,7 +180,7 @@ def _build(
     feats, targets, owner = [], [], []
     for k, d in enumerate(data):
         prev = _teacher(d, noise, rng)
-        feats.append(d.features(prev, np.arange(len(d.pose)), cfg, device))
+        feats.append(_compact(d.features(prev, np.arange(len(d.pose)), cfg, device)))
         targets.append(torch.as_tensor(axis_angle_to_rotation_6d(d.pose), dtype=torch.float32,
                                        device=device))
         owner.append(np.full(len(d.pose), k))
@@ -182,6 +214,22 @@ class ContactTerms:
             np.concatenate([np.full(n(d), names.index(d.obj_name)) for d in data])
         )
         self.contact = np.concatenate([d.contact for d in data])
+        self.gt_attention: torch.Tensor | None = None  # (contact rows, K), precompute_gt
+        self.gt_row = np.full(len(self.contact), -1)  # frame row -> row of gt_attention
+
+    def precompute_gt(self, target6: torch.Tensor, chunk: int) -> None:
+        """Proximity attention ``(C, K)`` of the ground truth ``target6 (N, 15, 6)`` on
+        every contact row, computed once in chunks of ``chunk`` rows instead of once per
+        batch and epoch. Every step is per row (skinning, transforms, grid reads), so a
+        row's values do not depend on the rows computed with it."""
+        rows = np.flatnonzero(self.contact)
+        self.gt_row[rows] = np.arange(len(rows))
+        with torch.no_grad():
+            parts = [
+                proximity_attention(self.signed_distance(target6[r], r))
+                for r in (rows[i : i + chunk] for i in range(0, len(rows), chunk))
+            ]
+        self.gt_attention = torch.cat(parts) if parts else None
 
     def signed_distance(self, pose6: torch.Tensor, rows: np.ndarray) -> torch.Tensor:
         """Signed distances ``(B, K)`` (m) of the hand with finger poses ``pose6 (B, 15, 6)``
@@ -209,9 +257,13 @@ class ContactTerms:
             zero = pred6.sum() * 0.0
             return zero, zero
         sd = self.signed_distance(pred6[keep], rows[keep])
-        with torch.no_grad():
-            gt = self.signed_distance(target6[keep], rows[keep])
-        return proximity_l1(proximity_attention(sd), proximity_attention(gt)), penetration_depth(sd)
+        if self.gt_attention is not None:
+            at = torch.as_tensor(self.gt_row[rows[keep]], device=self.gt_attention.device)
+            gt_att = self.gt_attention[at]
+        else:
+            with torch.no_grad():
+                gt_att = proximity_attention(self.signed_distance(target6[keep], rows[keep]))
+        return proximity_l1(proximity_attention(sd), gt_att), penetration_depth(sd)
 
 
 def _predict_all(net: ManipNet, feats: list[torch.Tensor], bs: int = 1024) -> torch.Tensor:
@@ -231,10 +283,11 @@ def _scheduled(
     rng: np.random.Generator,
 ) -> list[torch.Tensor]:
     """Features where a share of frames sees the model's own prediction of frame t-1
-    (computed in numpy from the predictions, then put back on the features' device)."""
+    (computed in numpy from the predictions, then put back on the features' device;
+    ``feats`` in :meth:`ManipNet.forward` order: traj, voxels, distances, prev_pose)."""
     device = feats[0].device
     pred = rotation_6d_to_axis_angle(_predict_all(net, feats).double()).cpu().numpy()  # (N,15,3)
-    feats = [x.clone() for x in feats]
+    feats = [feats[0], feats[1], feats[2].clone(), feats[3].clone()]  # the first two stay
     start = 0
     for d in data:
         n = len(d.pose)
@@ -243,9 +296,11 @@ def _scheduled(
         if len(pick):
             prev = np.concatenate([d.pose[:1], d.pose[:-1]])
             prev[pick] = pred[start + pick - 1]
-            new = d.features(prev, pick, cfg, device)
-            for x, y in zip(feats, new, strict=True):
-                x[start + pick] = y
+            # Only the distances and the previous pose depend on it: the trajectory and
+            # occupancy rows of the teacher features are already these frames' own.
+            dist, prev6 = d.pose_inputs(prev, pick, cfg, device)
+            feats[2][start + pick] = dist
+            feats[3][start + pick] = prev6
         start += n
     return feats
 
@@ -258,19 +313,36 @@ def _loss(
     hand: U.SubsetHand,
     cfg: ManipNetTrainConfig,
     contact: ContactTerms | None = None,
+    gt_vertices: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """Pose L2 + vertex L1 over ``hand``'s vertex subset (+ the contact terms)."""
+    """Pose L2 + vertex L1 over ``hand``'s vertex subset (+ the contact terms);
+    ``gt_vertices (N, K, 3)``: the target's vertices of every row (:func:`_gt_vertices`),
+    else posed per batch."""
     pred = net(*(x[idx] for x in feats))  # (B, 15, 6)
     loss = (pred - target[idx]).pow(2).mean()
     aa = lambda p: rotation_6d_to_axis_angle(p)  # noqa: E731
     v_pred = hand(None, aa(pred), None)[0]
-    with torch.no_grad():
-        v_gt = hand(None, aa(target[idx]), None)[0]
+    if gt_vertices is not None:
+        v_gt = gt_vertices[torch.as_tensor(idx, device=gt_vertices.device)]
+    else:
+        with torch.no_grad():
+            v_gt = hand(None, aa(target[idx]), None)[0]
     loss = loss + cfg.w_vertex * (v_pred - v_gt).abs().mean()
     if contact is not None:
         prox, pen = contact(pred, target[idx], idx)
         loss = loss + cfg.w_proximity * prox + cfg.w_penetration * pen
     return loss
+
+
+def _gt_vertices(hand: U.SubsetHand, target6: torch.Tensor, chunk: int) -> torch.Tensor:
+    """``hand``'s vertices ``(N, K, 3)`` at the target poses ``target6 (N, 15, 6)``, posed in
+    chunks of ``chunk`` rows once for the whole training (they were posed again in every
+    batch of every epoch; skinning is per row, so the values are the same)."""
+    with torch.no_grad():
+        return torch.cat([
+            hand(None, rotation_6d_to_axis_angle(target6[i : i + chunk]), None)[0]
+            for i in range(0, len(target6), chunk)
+        ])
 
 
 def train_manipnet(
@@ -282,11 +354,9 @@ def train_manipnet(
     device: U.Device = "cpu",
 ) -> tuple[ManipNet, int]:
     """The finger model, built and trained on ``device``; returns (net, n_frames)."""
-    from grip_bench.data.library import ObjectLibrary
-
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    library = ObjectLibrary(data_dir)
+    library = U.train_library(data_dir)
     seqs = U.train_sequences(data_dir, cfg.max_sequences, seed)
     ncfg = ManipNetConfig(
         n_past=cfg.n_past,
@@ -304,6 +374,10 @@ def train_manipnet(
     vhand = U.SubsetHand(hand, U.vertex_subset(hand, cfg.loss_vertices))  # skin only those
     contact = (ContactTerms(data, library, cfg.contact_vertices, device)
                if cfg.w_proximity or cfg.w_penetration else None)
+    # What the loss reads of the (fixed) targets, computed once: ~a sixth of a batch's time
+    gt_vertices = _gt_vertices(vhand, target, cfg.batch_size)
+    if contact is not None:
+        contact.precompute_gt(target, cfg.batch_size)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     d = ddp.current()  # DDP under torchrun / --nproc: each rank its share of a batch
     model = ddp.wrap(net, d, torch.device(device))  # BatchNorm over the global batch
@@ -316,7 +390,7 @@ def train_manipnet(
         net.train()
         total = 0.0
         for idx, w in U.rank_batches(U.batches(len(owner), cfg.batch_size, rng), d):
-            loss = _loss(model, feats, target, idx, vhand, cfg, contact)
+            loss = _loss(model, feats, target, idx, vhand, cfg, contact, gt_vertices)
             opt.zero_grad()
             U.backward(loss, w)
             opt.step()
@@ -365,11 +439,16 @@ class ManipNetMethod(U.TrainedMethod):
         outs = []
         state = U.seq_hand(seq, "right").named_pose("relaxed").double().numpy()  # (15, 3)
         self.net.eval()
+        cfg = self.net.cfg
         with U.single_thread(), torch.no_grad():
+            # The trajectory and occupancy do not depend on the rollout: all frames at once
+            # (per frame, the same numbers as manipnet_features gives for that frame).
+            traj, voxels = d.motion(cfg, dev) if T else (None, None)
             for t in range(T):
                 prev[t] = state
-                pose = rotation_6d_to_axis_angle(self.net(*d.features(prev, [t], self.net.cfg,
-                                                                       dev)).double())[0]
+                dist, prev6 = d.pose_inputs(prev, [t], cfg, dev)
+                out6 = self.net(traj[t : t + 1], voxels[t : t + 1], dist, prev6)
+                pose = rotation_6d_to_axis_angle(out6.double())[0]
                 outs.append(pose)
                 state = pose.cpu().numpy()  # the next frame's features need it in numpy
         out = torch.stack(outs).cpu().numpy() if outs else np.zeros((0, 15, 3))

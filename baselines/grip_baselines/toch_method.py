@@ -219,11 +219,9 @@ def train_toch(
 ) -> tuple[TemporalAE, int]:
     """The field denoiser, trained on ``device``; hits weighted by the class ratio of the
     training targets."""
-    from grip_bench.data.library import ObjectLibrary
-
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    library = ObjectLibrary(data_dir)
+    library = U.train_library(data_dir)
     seqs = U.train_sequences(data_dir, cfg.max_sequences, seed)
     windows = _training_windows(seqs, library, cfg, rng)
     pts, nrm, noisy, clean = _window_tensors(windows, library, cfg, seed, device)

@@ -286,3 +286,97 @@ def test_world_to_object_copies_agree_with_the_old_transforms() -> None:
     # and back: world = local @ R_row + t
     np.testing.assert_allclose(world_to_object(pts, R_row, t) @ R_row + t[:, None], pts,
                                atol=1e-14)
+
+
+def test_kept_fields_build_each_field_once_and_delegate(tmp_path: Path) -> None:
+    """The training library keeps every field it handed out (the library's LRU may drop
+    them: a cycle over more objects than its 64 rebuilt each one on every visit) and is
+    the wrapped library for everything else."""
+    from grip_baselines import common as U
+
+    from grip_bench.data.library import ObjectLibrary
+    from tests.baseline_fixtures import baseline_dataset
+
+    root = baseline_dataset(tmp_path / "data", T=6)
+    lib = ObjectLibrary(root)
+    kept = U.KeptFields(lib)
+    name = sorted(p.stem for p in (root / "tools").rglob("*.ply"))[0]
+    first = kept.field(name)
+    assert first is lib.field(name)  # the library's own field, the same arrays
+    lib.field.cache_clear()  # what an LRU eviction does
+    assert kept.field(name) is first
+    assert lib.field(name) is not first  # the bare library would rebuild it
+    assert kept.mesh is lib.mesh and kept.data_dir == lib.data_dir
+    built = U.train_library(root)
+    assert isinstance(built, U.KeptFields) and built.data_dir == Path(root)
+
+
+def test_manipnet_precomputed_targets_equal_the_per_batch_ones(tmp_path: Path) -> None:
+    """The targets' vertices and proximity attention, computed once for all rows, equal
+    what the loss computed per batch before (the naive reference), bit for bit."""
+    from grip_baselines import common as U
+    from grip_baselines.manipnet_method import ContactTerms, SeqData, _gt_vertices
+
+    from grip_bench.data.grab_io import list_sequences, read_grab
+    from grip_bench.data.library import ObjectLibrary
+    from grip_bench.geometry.rotations import axis_angle_to_rotation_6d, rotation_6d_to_axis_angle
+    from tests.baseline_fixtures import baseline_dataset
+
+    root = baseline_dataset(tmp_path / "data", T=12)
+    lib = ObjectLibrary(root)
+    data = [SeqData(read_grab(f), lib) for f in list_sequences(root)[:3]]
+    target = torch.as_tensor(
+        axis_angle_to_rotation_6d(np.concatenate([d.pose for d in data])), dtype=torch.float32
+    )
+    hand = U.hand_model("right")
+    vhand = U.SubsetHand(hand, U.vertex_subset(hand, 64))
+    gt_v = _gt_vertices(vhand, target, chunk=7)
+    plain, kept = ContactTerms(data, lib, n_vertices=64), ContactTerms(data, lib, n_vertices=64)
+    # the fixture's hands may not touch: mark every other row as a contact row in both
+    plain.contact[::2] = kept.contact[::2] = True
+    kept.precompute_gt(target, chunk=5)
+    assert kept.gt_attention is not None and len(kept.gt_attention) == kept.contact.sum()
+    pred = target + 0.05 * torch.randn(target.shape, generator=torch.Generator().manual_seed(0))
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        idx = np.sort(rng.choice(len(target), 9, replace=False))
+        with torch.no_grad():
+            want = vhand(None, rotation_6d_to_axis_angle(target[idx]), None)[0]
+        assert torch.equal(gt_v[idx], want)
+        for a, b in zip(plain(pred[idx], target[idx], idx), kept(pred[idx], target[idx], idx),
+                        strict=True):
+            assert torch.equal(a, b)
+
+
+def test_manipnet_scheduled_sampling_equals_full_feature_recomputation(tmp_path: Path) -> None:
+    """Scheduled sampling recomputes only the pose-dependent inputs of the picked frames;
+    the result equals recomputing all four inputs of those frames (the naive reference)."""
+    from grip_baselines import common as U
+    from grip_baselines.manipnet import ManipNetConfig
+    from grip_baselines.manipnet_method import _build, _predict_all, _scheduled
+
+    from grip_bench.geometry.rotations import rotation_6d_to_axis_angle
+    from tests.baseline_fixtures import baseline_dataset
+
+    root = baseline_dataset(tmp_path / "data", T=12)
+    lib = U.train_library(root)
+    seqs = U.load_split(root, "train")[:3]
+    cfg = ManipNetConfig(n_past=2, n_future=2, width=32, hidden=32, n_blocks=1)
+    data, feats, _, _ = _build(seqs, lib, cfg, 0.1, np.random.default_rng(0))
+    net = cfg.build()
+    torch.nn.init.normal_(net.net.head.weight, std=0.1)  # a non-trivial previous pose
+    got = _scheduled(net, data, feats, cfg, 0.5, np.random.default_rng(1))
+    pred = rotation_6d_to_axis_angle(_predict_all(net, feats).double()).numpy()
+    want = [x.clone() for x in feats]
+    rng, start = np.random.default_rng(1), 0
+    for d in data:
+        n = len(d.pose)
+        pick = np.flatnonzero(rng.random(n) < 0.5)
+        pick = pick[pick > 0]
+        prev = np.concatenate([d.pose[:1], d.pose[:-1]])
+        prev[pick] = pred[start + pick - 1]
+        for x, y in zip(want, d.features(prev, pick, cfg), strict=True):
+            x[start + pick] = y.to(x.dtype)
+        start += n
+    assert all(torch.equal(a, b) for a, b in zip(got, want, strict=True))
+    assert not torch.equal(got[2], feats[2])  # some distances did change

@@ -494,3 +494,31 @@ def test_manipnet_features_and_forward(hand: ProceduralHand, sphere_field: Dista
     torch.testing.assert_close(out, feats.torch()[3])  # zero-initialised residual head
     full = manipnet.ManipNetConfig().build()
     assert full.cfg.in_dim == 20 * 9 + 512 + 11 * 99 + 90
+
+
+def test_manipnet_motion_features_of_all_frames_equal_the_per_frame_features(
+    hand: ProceduralHand, sphere_field: DistanceField
+) -> None:
+    """The rollout's trajectory and occupancy, computed for every frame at once, are
+    bit for bit what ``manipnet_features(frames=[t])`` (the naive per-frame reference the
+    rollout called before) gives for each frame; so are the pose features of one frame."""
+    n = 9
+    wrist_rot = np.stack([rotation(s) for s in range(n)])
+    wrist_pos = np.cumsum(np.full((n, 3), 0.01), 0)
+    obj_rot = np.stack([rotation(20 + s) for s in range(n)])
+    centre = np.asarray(manipnet.voxel_centres()).reshape(-1, 3).mean(0)
+    obj_pos = np.einsum("fij,j->fi", wrist_rot, centre) + wrist_pos + 0.01
+    prev = 0.2 * np.random.default_rng(0).normal(size=(n, 15, 3))
+    cfg = manipnet.ManipNetConfig(n_past=3, n_future=2)
+    args = (wrist_rot, wrist_pos, obj_rot, obj_pos)
+    prox = manipnet.hand_proximity_fn(hand)
+    traj, voxels = manipnet.motion_features(*args, sphere_field.signed_distance, np.arange(n), cfg)
+    assert 0 < voxels.sum() < voxels.size
+    for t in range(n):
+        want = manipnet.manipnet_features(*args, prev, sphere_field.signed_distance, prox,
+                                          frames=[t], cfg=cfg)
+        assert np.array_equal(traj[t : t + 1], want.traj)
+        assert np.array_equal(voxels[t : t + 1], want.voxels)
+        dist, prev6 = manipnet.pose_features(*args, prev, sphere_field.signed_distance, prox,
+                                             np.array([t]), cfg)
+        assert np.array_equal(dist, want.distances) and np.array_equal(prev6, want.prev_pose)
