@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 StageFn = Callable[[RunState, "Unit", Path], dict]
 INSTALL_HINT = 'Ray is not installed: pip install "grip-bench[ray]" (or pip install ray)'
 METHOD_KINDS = ("checkpoint", "prediction", "runtime")  # units that build and run a method
-POOL_KINDS = ("dataset", "metrics", "validity", "sensitivity")  # units with a process pool of --workers
+POOL_KINDS = ("dataset", "metrics", "validity", "sensitivity")  # a pool of --workers
 
 
 def import_ray() -> Any:

@@ -189,7 +189,7 @@ def run_task(task: Task) -> tuple:
     stats: dict | None = {} if task.contact_stats else None
     rows, frames = evaluate_sequence(pred, gt, _LIBRARY, per_frame=task.per_frame,
                                      options=task.options, labels=task.labels, failures=failures,
-                                     stats=stats)
+                                     stats=stats, gt_cache=True)
     if stats is not None:
         return rows, frames, dict(failures.reasons), stats
     return rows, frames, dict(failures.reasons)

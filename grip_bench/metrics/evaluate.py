@@ -31,6 +31,7 @@ shared by the two hands.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
@@ -181,15 +182,54 @@ def hand_track(
     return HandTrack(verts, joints, local, signed_distances(field, local))
 
 
+# Posed ground-truth hands of this process, least recently used first (``gt_track``).
+_GT_TRACKS: OrderedDict[tuple, HandTrack] = OrderedDict()
+
+
+def gt_track(seq: Sequence, side: str, poser: ProceduralPoser | MANOPoser,
+             library: ObjectLibrary, field: DistanceField, model_path: str | None
+             ) -> HandTrack:
+    """:func:`hand_track` of a ground-truth sequence as read from its file, kept for the next
+    prediction set scored against it in this process (up to ``EVAL_GT_CACHE_BYTES``; arrays
+    read-only, so no metric can change what the next one reads). The key is the file's
+    path and content hash, the side, the hand models and the library's folder and mesh
+    options. Only for a sequence read from its file unchanged (``evaluate_sequence(...,
+    gt_cache=True)``: the evaluation workers and metric validity read it just before)."""
+    import hashlib
+    import os
+
+    if not seq.source:
+        return hand_track(seq, side, poser, library, field)
+    with open(seq.source, "rb") as f:
+        digest = hashlib.blake2b(f.read(), digest_size=16).hexdigest()
+    key = (os.path.realpath(seq.source), digest, side, str(model_path),
+           os.path.realpath(library.data_dir), repr(library.mesh_options))
+    if key in _GT_TRACKS:
+        _GT_TRACKS.move_to_end(key)
+        return _GT_TRACKS[key]
+    track = hand_track(seq, side, poser, library, field)
+    for a in (track.verts, track.joints, track.local, track.sd):
+        a.flags.writeable = False
+    _GT_TRACKS[key] = track
+    total = sum(_track_bytes(t) for t in _GT_TRACKS.values())
+    while total > C.EVAL_GT_CACHE_BYTES and len(_GT_TRACKS) > 1:
+        total -= _track_bytes(_GT_TRACKS.popitem(last=False)[1])
+    return track
+
+
+def _track_bytes(t: HandTrack) -> int:
+    return t.verts.nbytes + t.joints.nbytes + t.local.nbytes + t.sd.nbytes
+
+
 class SequencePair:
     """A prediction and its ground truth, with lazily computed per-hand geometry."""
 
     def __init__(self, pred: Sequence, gt: Sequence, library: ObjectLibrary,
-                 options: EvalOptions, failures: FailureCounter):
+                 options: EvalOptions, failures: FailureCounter, gt_cache: bool = False):
         from ..data.posing import hand_poser
 
         self.pred, self.gt, self.library, self.options = pred, gt, library, options
-        self.failures = failures
+        self.failures, self.gt_cache = failures, gt_cache
         self.poser = hand_poser(gt, options.model_path)
         for hand in self.poser.hands.values():
             hand.double()  # float64 posing: a 5 mm offset measures 5 mm to 1e-9 m, not 1e-7
@@ -203,8 +243,12 @@ class SequencePair:
         """``who`` is "pred" or "gt"."""
         key = (who, side)
         if key not in self._tracks:
-            seq = self.pred if who == "pred" else self.gt
-            self._tracks[key] = hand_track(seq, side, self.poser, self.library, self.field)
+            if who == "gt" and self.gt_cache:
+                self._tracks[key] = gt_track(self.gt, side, self.poser, self.library,
+                                             self.field, self.options.model_path)
+            else:
+                seq = self.pred if who == "pred" else self.gt
+                self._tracks[key] = hand_track(seq, side, self.poser, self.library, self.field)
         return self._tracks[key]
 
     def grasp(self, side: str) -> np.ndarray:
@@ -487,8 +531,8 @@ def _rows(
 def evaluate_sequence(pred: Sequence, gt: Sequence, library: ObjectLibrary, *,
                       metrics: Iterable[str] | None = None, per_frame: bool = False,
                       options: EvalOptions = EvalOptions(), labels: RowLabels = RowLabels(),
-                      failures: FailureCounter | None = None, stats: dict | None = None
-                      ) -> tuple[list[ResultRow], list[ResultRow]]:
+                      failures: FailureCounter | None = None, stats: dict | None = None,
+                      gt_cache: bool = False) -> tuple[list[ResultRow], list[ResultRow]]:
     """All requested metrics of both hands of one predicted sequence against its ground truth.
 
     pred, gt: :class:`~grip_bench.data.sequence.Sequence` (same object and frame count);
@@ -497,11 +541,14 @@ def evaluate_sequence(pred: Sequence, gt: Sequence, library: ObjectLibrary, *,
     added to. Returns (result rows, per-frame rows; empty unless ``per_frame``), values in
     report units, rows in (hand, registry metric) order. ``stats``: optional dict, filled with
     :func:`contact_stats` of every hand (figure data; the rows do not change).
+    ``gt_cache``: ``gt`` is exactly its file's content (just read), so its posed hands may
+    be kept for the next prediction set (:func:`gt_track`; the same values).
     """
     check_pair(pred, gt)
     ids = options.metric_ids(metrics)
     pair = SequencePair(
-        pred, gt, library, options, failures if failures is not None else FailureCounter()
+        pred, gt, library, options, failures if failures is not None else FailureCounter(),
+        gt_cache,
     )
     rows, frame_rows = [], []
     for side in options.sides:

@@ -449,7 +449,7 @@ def _job_rows(job: tuple) -> list[dict]:
     d_id, level, path, seed, options = job
     d, library, gt = DEGRADATIONS[d_id], worker_library(), read_grab(path)
     pred = gt if level == 0 else d.apply(gt, level, library, seed)
-    got, _ = evaluate_sequence(pred, gt, library, options=options)
+    got, _ = evaluate_sequence(pred, gt, library, options=options, gt_cache=True)
     return [{"degradation": d.id, "level": level * d.scale, **asdict(r)} for r in got]
 
 

@@ -254,3 +254,37 @@ def test_contact_stats_pool_to_the_contact_frequency_of_all_grasp_frames(data, t
     assert list(back) == list(pooled)
     for k, v in pooled.items():
         np.testing.assert_array_equal(back[k], v)
+
+
+def test_cached_ground_truth_hands_give_the_same_rows_and_are_read_only(data, tmp_path):
+    """gt_cache=True keeps the posed ground truth for the next prediction set: the rows are
+    the uncached ones, the kept arrays cannot be written, and a changed file is re-posed."""
+    from grip_bench.data.grab_io import write_grab
+
+    lib, seqs = data
+    gt = next(iter(seqs.values()))
+    pred = gt.copy()
+    pred.rhand["transl"] = np.asarray(pred.rhand["transl"]) + np.array([0.003, 0.0, 0.0])
+    E._GT_TRACKS.clear()
+    plain, _ = E.evaluate_sequence(pred, gt, lib, options=FAST)
+    first, _ = E.evaluate_sequence(pred, gt, lib, options=FAST, gt_cache=True)
+    kept = dict(E._GT_TRACKS)
+    again, _ = E.evaluate_sequence(pred, gt, lib, options=FAST, gt_cache=True)
+    def same(rows):  # NaN-aware: repr of every field
+        return [tuple(map(repr, vars(r).values())) for r in rows]
+
+    assert same(plain) == same(first) == same(again) and len(kept) == 2  # posed once
+    assert next(r.value for r in first if r.metric == "mpjpe") == pytest.approx(3.0)
+    assert all(a is b for a, b in zip(kept.values(), E._GT_TRACKS.values(), strict=True))
+    track = next(iter(kept.values()))
+    with pytest.raises(ValueError):
+        track.sd[0, 0] = 1.0
+    # the same path with other content is another key: posed again
+    moved = gt.copy()
+    moved.rhand["transl"] = np.asarray(moved.rhand["transl"]) + np.array([0.0, 0.002, 0.0])
+    path = tmp_path / "grab" / "s1" / "x.npz"
+    write_grab(moved, path)
+    other = read_grab(path)
+    E.evaluate_sequence(pred, other, lib, options=FAST, gt_cache=True)
+    assert len(E._GT_TRACKS) == 4
+    E._GT_TRACKS.clear()
