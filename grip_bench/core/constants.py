@@ -227,9 +227,6 @@ VALIDITY_CONTACT = 0.005  # m; vertices this close set the push / pull direction
 EVAL_EXACT_BAND = 0.005  # m; grid distances below this (contact, CC, penetration) are recomputed
 # exactly, so every threshold decision (4.5 mm, 2 mm, inside) is made on exact distances
 EVAL_MAX_LISTED = 5  # missing / extra sequences named in a mismatch error (then a count)
-EVAL_GT_CACHE_BYTES = 1 << 30  # posed ground-truth hands kept per evaluation process: a run
-# scores ~30 prediction sets against one ground truth, and posing + distances of the ground
-# truth were ~20 % of each set's evaluation (metrics.evaluate.gt_track)
 
 # --- distance far field ---------------------------------------------------------
 # (spacing, padding) m of the exact-valued grids that answer far="coarse" queries beyond the

@@ -182,7 +182,11 @@ def hand_track(
     return HandTrack(verts, joints, local, signed_distances(field, local))
 
 
-# Posed ground-truth hands of this process, least recently used first (``gt_track``).
+# Posed ground-truth hands of this process, least recently used first (``gt_track``). A run
+# scores ~30 prediction sets against one ground truth, and posing it and its distances were
+# ~20 % of each set's evaluation. A memory budget, not a protocol constant (it changes no
+# value), so it lives here and not in core/constants.py, whose every edit renews every unit.
+GT_CACHE_BYTES = 1 << 30
 _GT_TRACKS: OrderedDict[tuple, HandTrack] = OrderedDict()
 
 
@@ -190,7 +194,7 @@ def gt_track(seq: Sequence, side: str, poser: ProceduralPoser | MANOPoser,
              library: ObjectLibrary, field: DistanceField, model_path: str | None
              ) -> HandTrack:
     """:func:`hand_track` of a ground-truth sequence as read from its file, kept for the next
-    prediction set scored against it in this process (up to ``EVAL_GT_CACHE_BYTES``; arrays
+    prediction set scored against it in this process (up to ``GT_CACHE_BYTES``; arrays
     read-only, so no metric can change what the next one reads). The key is the file's
     path and content hash, the side, the hand models and the library's folder and mesh
     options. Only for a sequence read from its file unchanged (``evaluate_sequence(...,
@@ -212,7 +216,7 @@ def gt_track(seq: Sequence, side: str, poser: ProceduralPoser | MANOPoser,
         a.flags.writeable = False
     _GT_TRACKS[key] = track
     total = sum(_track_bytes(t) for t in _GT_TRACKS.values())
-    while total > C.EVAL_GT_CACHE_BYTES and len(_GT_TRACKS) > 1:
+    while total > GT_CACHE_BYTES and len(_GT_TRACKS) > 1:
         total -= _track_bytes(_GT_TRACKS.popitem(last=False)[1])
     return track
 
