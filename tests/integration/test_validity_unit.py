@@ -79,7 +79,7 @@ def data(tmp_path_factory):
 def _state(out: Path, data: Path, units: list[Unit]):
     """The little of a RunState the validity stage and its assembly read."""
     cache = Cache(out / "cache")
-    return SimpleNamespace(cfg=SimpleNamespace(out=out, progress=False),
+    return SimpleNamespace(cfg=SimpleNamespace(out=out, progress=False, workers=1),
                            data_dir=lambda key: data, unit_dir=cache.path,
                            plan=SimpleNamespace(of=lambda kind: units if kind == "validity"
                                                 else []))
