@@ -68,19 +68,30 @@ class RunState:
         return json.loads((self.cache.path(key) / UNIT_FILE).read_text(encoding="utf-8"))
 
 
+def peak_rss_mib() -> float:
+    """Peak resident memory of this process so far, MiB (Linux reports ``ru_maxrss`` in KiB)."""
+    import resource
+
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+
+
 def execute(st: RunState, unit: Unit, work: Callable[[Path], dict | None]) -> Path:
     """Run ``work(tmp)`` for a unit unless it is cached; the unit appears atomically.
 
-    ``work`` returns a small dict recorded in the unit's ``unit.json`` beside its inputs and
-    the unit's wall time (``seconds``; not part of any result).
+    ``work`` returns a small dict recorded in the unit's ``unit.json`` beside its inputs,
+    the unit's wall time (``seconds``) and the peak resident memory of the process that ran
+    it before and after (``peak_rss_mib``; a pool worker's peak only grows, so the unit whose
+    ``after`` first reaches a worker's peak is the one that set it; work done in a child
+    pool, as evaluation's, is not in it). Neither is part of any result.
     """
     if st.cache.has(unit.key):
         return st.unit_dir(unit.key)
     with st.cache.atomic(unit.key) as tmp:
-        t0 = time.perf_counter()
+        t0, rss0 = time.perf_counter(), peak_rss_mib()
         info = work(tmp) or {}
         record = {"kind": unit.kind, "label": unit.label, "inputs": unit.params["inputs"],
-                  "info": info, "seconds": round(time.perf_counter() - t0, 3)}
+                  "info": info, "seconds": round(time.perf_counter() - t0, 3),
+                  "peak_rss_mib": {"before": rss0, "after": peak_rss_mib()}}
         text = json.dumps(jsonable(record), sort_keys=True, indent=1) + "\n"
         (tmp / UNIT_FILE).write_text(text, encoding="utf-8")
     return st.unit_dir(unit.key)

@@ -117,6 +117,9 @@ def test_run_writes_the_documented_layout(finished):
     assert kinds == sorted(KINDS)  # no checkpoint: the reference methods do not train
     assert len(_units(out)) == N_UNITS
     assert not any((out / "cache" / ".tmp").iterdir())
+    for u in _units(out):  # each unit records its process's peak memory around its work
+        rss = json.loads((u / "unit.json").read_text(encoding="utf-8"))["peak_rss_mib"]
+        assert 0 < rss["before"] <= rss["after"]
 
 
 def test_results_cover_methods_perturbations_and_metrics(finished):
