@@ -631,7 +631,10 @@ def write_run_pages(out: str | os.PathLike, results: pd.DataFrame,
     truth folder)}``, both GRAB layout, clean split), the ``n`` sequences of
     :func:`choose_sequences`, ground truth beside the method; writes the index. ``n = 0``
     removes the pages of an earlier run. ``workers`` > 1 writes the pages in that many
-    processes (each page is packed alone: the same bytes). Returns the index entries."""
+    processes (``metrics.aggregate.map_tasks``; each page is packed alone: the same bytes).
+    Returns the index entries."""
+    from ..metrics.aggregate import map_tasks
+
     out = Path(out)
     entries: list[dict] = []
     jobs: list[tuple] = []
@@ -652,7 +655,11 @@ def write_run_pages(out: str | os.PathLike, results: pd.DataFrame,
                          str(pred_dir / "grab" / f"{seq_id}.npz"), method, metrics, per_frame,
                          model_path, max_frames, title))
             entries.append({**pick, "method": method, "page": name})
-    for entry, size in zip(entries, _map(_write_page, jobs, workers), strict=True):
+    # the evaluation's kept worker pool (a run has just evaluated against this ground truth);
+    # a page reads nothing through the pool's object library
+    pool_dir = next(iter(sources.values()))[1] if sources else out
+    sizes = map_tasks(_write_page, jobs, Path(pool_dir), workers, False)
+    for entry, size in zip(entries, sizes, strict=True):
         entry["bytes"] = size
     remove_pages(out, keep=[e["page"] for e in entries])
     if entries:
@@ -679,15 +686,3 @@ def _write_page(job: tuple) -> int:
     written = write_viewer(path, tracks, model_path=model_path, max_frames=max_frames,
                            title=title)
     return written.stat().st_size
-
-
-def _map(fn: Any, jobs: list, workers: int) -> list:
-    """``[fn(j) for j in jobs]``, in a spawn pool of ``workers`` processes when > 1."""
-    if workers <= 1 or len(jobs) <= 1:
-        return [fn(j) for j in jobs]
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)),
-                             mp_context=mp.get_context("spawn")) as pool:
-        return list(pool.map(fn, jobs))
