@@ -697,14 +697,16 @@ def counterfactual_methods(cfg: RunConfig) -> tuple[list[str], list[str]]:
 def _counterfactual_units(cfg: RunConfig, data: Unit, ckpts: Checkpoints,
                           units: list[Unit]) -> list[str]:
     """With ``[run] counterfactual_sources`` > 0 on generated data: the split's dataset unit
-    (kind ``counterfactual``), a prediction unit per scored method (the run's first-seed
-    checkpoint on the split; no metrics unit, so nothing reaches ``results.csv``) and one
+    (kind ``counterfactual``), a prediction unit per scored method and seed of ``[run]
+    seeds`` (its checkpoint on the split; further seeds labelled ``<method>@seed<N>``,
+    untrained methods once; no metrics unit, so nothing reaches ``results.csv``) and one
     ``sensitivity`` unit scoring them all. Returns notes for the run's log; on imported
     data, or when none of the run's methods is scored, the split is skipped with a note.
 
     Nothing here enters another unit's inputs: with the key at 0 (or absent) every key is
     what it was before these keys existed."""
     from ..methods.api import METHODS
+    from ..report.tables import seed_label
 
     n, _ = counterfactual_settings(cfg.settings)
     if n == 0:
@@ -731,18 +733,24 @@ def _counterfactual_units(cfg: RunConfig, data: Unit, ckpts: Checkpoints,
               f"counterfactual split: synthgrab profile={s['synth_profile']} "
               f"seed={s['data_seed']} sources={n}", inputs)
     preds: dict[str, str] = {}
-    for name in methods:
-        spec, ckpt = METHODS.get(name), ckpts[(name, cfg.seed)]
+    # every seed of [run] seeds that has a checkpoint: the first seed's units are a
+    # single-seed run's, a further seed's rows are ``<method>@seed<N>`` as in the tables
+    runs = [(name, seed) for seed in cfg.seeds for name in methods if (name, seed) in ckpts]
+    for name, seed in runs:
+        spec, ckpt = METHODS.get(name), ckpts[(name, seed)]
+        first = seed == cfg.seed  # untrained methods have the first seed only (_train_units)
         inputs = {**_method_inputs(spec, "prediction"), "checkpoint": ckpt.key if ckpt else None,
-                  "input": cf.key, "split": MAIN_SPLIT, "seed": cfg.seed,
+                  "input": cf.key, "split": MAIN_SPLIT, "seed": seed,
                   "device": cfg.device if spec.trainable else None,
                   "train_data": data.key}  # PredictContext.data_dir: retrieval reads it
         deps = [cf.key, data.key] + ([ckpt.key] if ckpt else [])
+        extra = {} if first else {"seed": seed}
+        stag = "" if first else f" (seed {seed})"
         # perturbation "none": a clean test set (PredictContext.refine stays False)
-        pred = _add(units, "prediction", f"predict {name} @ {CF_PREDICTION_SET}", inputs,
+        pred = _add(units, "prediction", f"predict {name} @ {CF_PREDICTION_SET}{stag}", inputs,
                     deps, method=name, input=cf.key, checkpoint=ckpt.key if ckpt else None,
-                    perturbation=CLEAN, test_set=CF_PREDICTION_SET)
-        preds[name] = pred.key
+                    perturbation=CLEAN, test_set=CF_PREDICTION_SET, **extra)
+        preds[name if first else seed_label(name, seed)] = pred.key
     from ..report.sensitivity import TABLE_VERSION
 
     inputs = {"data": cf.key, "predictions": preds, "model_path": cfg.model_path,

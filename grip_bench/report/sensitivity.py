@@ -33,7 +33,10 @@ REFERENCES = ("gt", "same-hands")
 SCORE_COLUMNS = ("reproduced", "aperture_error", "gt_aperture_change", "mpvpe_a", "mpvpe_b",
                  "mpvpe", "n_frames")
 GATE_TOL = 1e-9  # share / m; the reference rows are exact by construction
-TABLE_VERSION = 1
+TABLE_VERSION = 2  # 2: a seeds section when the run has several training seeds
+SEED_COMPARE_TO = "grip"  # further seeds' rows are judged against this method (as Table 2)
+SEED_SCORES = (("reproduced", "Change reproduced", "%", 100.0, 1),
+               ("aperture_error", "Aperture-change error", "mm", 1000.0, 2))
 
 
 # --- reading ------------------------------------------------------------------------------
@@ -175,6 +178,69 @@ def summarize(rows: pd.DataFrame, n_boot: int = BOOTSTRAP_N,
     return pd.concat([methods, df[df["reference"]]], ignore_index=True)
 
 
+def seed_judgements(rows: pd.DataFrame, compare_to: str = SEED_COMPARE_TO,
+                    n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED) -> pd.DataFrame:
+    """Seeds of the run (``<method>@seed<N>`` rows, ``report.tables.seed_label``): per
+    method with two or more seeds and per score of ``SEED_SCORES`` (report units), the
+    per-seed means over pairs, their mean and, for a method other than ``compare_to``, the
+    difference of seed means to it with its paired 95 % bootstrap interval over the pairs
+    both have (each pair's seed-averaged score, stratified by object family) and the
+    verdict of ``report.tables.judge`` (real only beyond the seed spread and the interval).
+    Empty when no method has several seeds."""
+    from .tables import judge, seed_labels, split_seed_label
+
+    labels = list(dict.fromkeys(rows["method"]))
+    seeded = {m: [m, *extra] for m, extra in seed_labels(labels).items() if m in labels}
+
+    def per_pair(method: str, col: str, scale: float) -> pd.Series:
+        g = rows[rows["method"].isin(seeded[method])]
+        return g.groupby("pair")[col].mean() * scale  # NaN seeds drop out of a pair's mean
+
+    family = rows.drop_duplicates("pair").set_index("pair")["family"]
+    out = []
+    for method, members in seeded.items():
+        for col, _, _, scale, _ in SEED_SCORES:
+            means = [float(np.nanmean(rows.loc[rows["method"] == m, col].to_numpy(float))
+                           * scale) for m in members]
+            rec = {"method": method, "score": col, "seeds": len(members),
+                   "seed_labels": " ".join(str(split_seed_label(m)[1] or 0) for m in members),
+                   "mean": float(np.mean(means)), "seed_min": min(means), "seed_max": max(means),
+                   "diff": np.nan, "diff_lo": np.nan, "diff_hi": np.nan, "spread": np.nan,
+                   "verdict": ""}
+            if method != compare_to and compare_to in seeded:
+                ref_means = [float(np.nanmean(rows.loc[rows["method"] == m, col].to_numpy(float))
+                                   * scale) for m in seeded[compare_to]]
+                d = (per_pair(method, col, scale) - per_pair(compare_to, col, scale)).dropna()
+                ci = bootstrap_ci(d.to_numpy(float), family.loc[d.index].to_numpy(),
+                                  n_boot=n_boot, seed=seed) if len(d) else None
+                j = judge(means, ref_means, ci)
+                rec.update(diff=j.diff, spread=j.spread, verdict=j.verdict or "",
+                           diff_lo=ci.lo if ci else np.nan, diff_hi=ci.hi if ci else np.nan)
+            out.append(rec)
+    return pd.DataFrame(out)
+
+
+def render_seeds(judged: pd.DataFrame, compare_to: str = SEED_COMPARE_TO) -> list[str]:
+    """The seeds section of the Markdown table (:func:`seed_judgements`); none when empty."""
+    if not len(judged):
+        return []
+    lines = ["", f"Seeds: mean over seeds {{range of the per-seed means}}; against "
+             f"{compare_to}: difference of seed means [paired 95 % interval over pairs], seed "
+             "spread, verdict (real only when it exceeds both; docs/seeds_and_noise.md).", "",
+             "| Method | Seeds | Score | Mean {min–max} | Difference [95 % CI] | Spread | "
+             "Verdict |", "|---|---|---|---|---|---|---|"]
+    names = {col: (title, unit, dec) for col, title, unit, _, dec in SEED_SCORES}
+    for _, r in judged.iterrows():
+        title, unit, dec = names[r["score"]]
+        diff = "—" if not np.isfinite(r["diff"]) else (
+            f"{r['diff']:+.{dec}f} [{r['diff_lo']:+.{dec}f}, {r['diff_hi']:+.{dec}f}]")
+        spread = "—" if not np.isfinite(r["spread"]) else f"{r['spread']:.{dec}f}"
+        lines.append(f"| {r['method']} | {r['seed_labels']} | {title} ({unit}) | "
+                     f"{r['mean']:.{dec}f} {{{r['seed_min']:.{dec}f}–{r['seed_max']:.{dec}f}}} "
+                     f"| {diff} | {spread} | {r['verdict'] or '—'} |")
+    return lines
+
+
 def sanity_gate(rows: pd.DataFrame) -> list[tuple[str, bool, str]]:
     """The gate: (check, passed, measured) for ``gt`` (every pair reproduces 1 and has a 0 m
     aperture error) and ``same-hands`` (every pair reproduces 0). Pairs whose change is NaN
@@ -200,7 +266,7 @@ def _cell(rec: pd.Series, col: str, decimals: int) -> str:
 
 
 def render_markdown(summary: pd.DataFrame, gate: list[tuple[str, bool, str]],
-                    pairs: int) -> str:
+                    pairs: int, seeds: pd.DataFrame | None = None) -> str:
     """The table, its notes and the gate as Markdown."""
     lines = [
         f"## Geometry sensitivity (counterfactual split, {pairs} pairs, v{TABLE_VERSION})",
@@ -226,6 +292,7 @@ def render_markdown(summary: pd.DataFrame, gate: list[tuple[str, bool, str]],
     ]
     if len(gt) and np.isfinite(gt.iloc[0]):
         lines.append(f"Mean |ground-truth aperture change|: {gt.iloc[0]:.2f} mm.")
+    lines += render_seeds(seeds) if seeds is not None else []
     lines += ["", "Sanity gate:"]
     lines += [f"- {'PASS' if ok else 'FAIL'}: {name} ({got})" for name, ok, got in gate]
     return "\n".join(lines) + "\n"
@@ -275,5 +342,9 @@ def write_sensitivity(out_dir: str | os.PathLike, rows: pd.DataFrame,
     if pairs_file:
         write_pairs_csv(paths[0], rows)
     atomic_write_text(paths[1], summary.to_csv(index=False, float_format="%.6g"))
-    atomic_write_text(paths[2], render_markdown(summary, gate, n_pairs))
+    seeds = seed_judgements(rows) if len(rows) else pd.DataFrame()
+    atomic_write_text(paths[2], render_markdown(summary, gate, n_pairs, seeds))
+    if len(seeds):
+        paths.append(tables / "geometry_sensitivity_seeds.csv")
+        atomic_write_text(paths[-1], seeds.to_csv(index=False, float_format="%.6g"))
     return paths if pairs_file else paths[1:], all(ok for _, ok, _ in gate)

@@ -101,8 +101,25 @@ def write_figures(out: Path, results: pd.DataFrame, options: dict) -> list[Path]
     return drawn
 
 
+def _seed_notes(seeds: pd.DataFrame | None) -> tuple[str, ...]:
+    """One note per judged row of ``report.sensitivity.seed_judgements``."""
+    if seeds is None or not len(seeds):
+        return ()
+    from .sensitivity import SEED_COMPARE_TO, SEED_SCORES
+
+    names = {col: (title, unit, dec) for col, title, unit, _, dec in SEED_SCORES}
+    out = []
+    for _, r in seeds[seeds["verdict"] != ""].iterrows():
+        title, unit, dec = names[r["score"]]
+        out.append(f"Seeds {r['seed_labels']}: {r['method']} minus {SEED_COMPARE_TO}, "
+                   f"{title.lower()}: {r['diff']:+.{dec}f} {unit} [{r['diff_lo']:+.{dec}f}, "
+                   f"{r['diff_hi']:+.{dec}f}], seed spread {r['spread']:.{dec}f}: "
+                   f"{r['verdict']}.")
+    return tuple(out)
+
+
 def sensitivity_table_data(summary: pd.DataFrame, gate: list[tuple[str, bool, str]],
-                           n_pairs: int) -> TableData:
+                           n_pairs: int, seeds: pd.DataFrame | None = None) -> TableData:
     """The geometry-sensitivity table (``report.sensitivity.summarize``) as a
     :class:`~report.tables.TableData` for the HTML pages: methods, then the reference rows;
     the best method per column in bold (references excluded); the gate in the notes."""
@@ -135,6 +152,7 @@ def sensitivity_table_data(summary: pd.DataFrame, gate: list[tuple[str, bool, st
              "95 % bootstrap interval over pairs stratified by object family.",
              "Change reproduced: 1 - |d_m - d_gt| / |d_gt| (clipped to [0, 1]), d = hands_B "
              "- hands_A; 0 for a method blind to the object (docs/counterfactual.md).",
+             *_seed_notes(seeds),
              *(f"Sanity gate: {'PASS' if ok else 'FAIL'}: {name} ({got})"
                for name, ok, got in gate))
     columns = tuple(Column(group, label, unit, hib) for group, label, _, unit, hib, _ in spec)
@@ -153,11 +171,18 @@ def write_sensitivity_report(out: str | os.PathLike) -> tuple[list[Path], TableD
     removed; a split without pairs gets a Markdown note only."""
     from ..core.io import atomic_write_text
     from .render import to_html
-    from .sensitivity import read_pairs_csv, sanity_gate, summarize, write_sensitivity
+    from .sensitivity import (
+        read_pairs_csv,
+        sanity_gate,
+        seed_judgements,
+        summarize,
+        write_sensitivity,
+    )
 
     out = Path(out)
     tables = out / "tables"
     stale = {tables / f"{SENSITIVITY_TABLE}.{fmt}" for fmt in SENSITIVITY_FORMATS}
+    stale.add(tables / f"{SENSITIVITY_TABLE}_seeds.csv")  # runs with several seeds only
     rows = read_pairs_csv(out / SENSITIVITY_PAIRS) if (out / SENSITIVITY_PAIRS).is_file() \
         else None
     written, data = [], None
@@ -169,7 +194,7 @@ def write_sensitivity_report(out: str | os.PathLike) -> tuple[list[Path], TableD
     elif rows is not None:
         written, _ = write_sensitivity(out, rows, tables, pairs_file=False)
         data = sensitivity_table_data(summarize(rows), sanity_gate(rows),
-                                      int(rows["pair"].nunique()))
+                                      int(rows["pair"].nunique()), seed_judgements(rows))
         written.append(atomic_write_text(tables / f"{SENSITIVITY_TABLE}.html", to_html(data)))
     for path in sorted(stale - set(written)):
         if path.exists():

@@ -61,7 +61,7 @@ def test_profiles_list_the_keys():
     found = {name: (load_profile(name)["run"]["counterfactual_sources"],
                     load_profile(name)["run"]["counterfactual_methods"]) for name in NAMES}
     assert found == {"smoke": (0, []), "default": (24, []), "paper": (48, []),
-                     "ablation": (0, [])}
+                     "ablation": (24, [])}
 
 
 # --- planning ---------------------------------------------------------------------------------
@@ -88,8 +88,8 @@ def test_off_leaves_every_key_unchanged(tmp_path):
 
 def test_on_adds_the_split_its_predictions_and_one_scoring_unit(tmp_path):
     """Every unit of the run without the split keeps its key; the split adds one dataset
-    unit, a prediction per scored method (first seed, clean context, no metrics unit) and
-    the sensitivity unit that reads them."""
+    unit, a prediction per scored method and seed (clean context, no metrics unit; a
+    further seed's labelled ``<method>@seed<N>``) and the sensitivity unit that reads them."""
     _, off = _plan(tmp_path, "off")
     cfg, on = _plan(tmp_path, "on", counterfactual_sources=3, seeds=[0, 5])
     _, off_seeds = _plan(tmp_path, "off_seeds", seeds=[0, 5])
@@ -100,8 +100,10 @@ def test_on_adds_the_split_its_predictions_and_one_scoring_unit(tmp_path):
     assert sorted((u.kind, u.label) for u in new) == [
         ("counterfactual", "counterfactual split: synthgrab profile=tiny seed=0 sources=3"),
         ("prediction", "predict nearest-arm @ counterfactual"),
+        ("prediction", "predict nearest-arm @ counterfactual (seed 5)"),
         ("prediction", "predict nearest-neighbour @ counterfactual"),
-        ("sensitivity", "geometry sensitivity of 2 method(s)")]
+        ("prediction", "predict nearest-neighbour @ counterfactual (seed 5)"),
+        ("sensitivity", "geometry sensitivity of 4 method(s)")]
     (cf,) = on.of("counterfactual")
     (data,) = on.of("dataset")
     inputs = cf.params["inputs"]
@@ -115,16 +117,24 @@ def test_on_adds_the_split_its_predictions_and_one_scoring_unit(tmp_path):
     assert "grip_bench.report.sensitivity" not in closure
     assert inputs["code"] == stage_code("counterfactual")
     preds = [u for u in new if u.kind == "prediction"]
-    ckpts = {u.params["method"]: u.key for u in on.of("checkpoint") if "seed" not in u.params}
+    ckpts = {(u.params["method"], u.params.get("seed", 0)): u.key for u in on.of("checkpoint")}
     for u in preds:
+        seed = u.params.get("seed", 0)
         assert u.params["input"] == cf.key and u.params["perturbation"] == CLEAN
-        assert u.params["checkpoint"] == ckpts[u.params["method"]]  # the first seed's
+        assert u.params["checkpoint"] == ckpts[(u.params["method"], seed)]  # its seed's
+        assert u.params["inputs"]["seed"] == seed
         assert u.params["inputs"]["train_data"] == data.key
         assert cf.key in u.deps and data.key in u.deps
     # no metrics unit reads them: nothing of the split reaches results.csv
     assert not {u.key for u in preds} & {u.params["prediction"] for u in on.of("metrics")}
     (sens,) = on.of("sensitivity")
-    assert sens.params["predictions"] == {u.params["method"]: u.key for u in preds}
+    label = {0: "{}", 5: "{}@seed5"}
+    assert sens.params["predictions"] == {
+        label[u.params.get("seed", 0)].format(u.params["method"]): u.key for u in preds}
+    # the first seed's units are a single-seed run's
+    _, single = _plan(tmp_path, "single", counterfactual_sources=3)
+    assert {u.key for u in single.of("prediction") if "counterfactual" in u.label} == {
+        u.key for u in preds if "seed" not in u.params}
     assert set(sens.deps) == {cf.key, *(u.key for u in preds)}
     assert sens.params["inputs"]["min_gt_rms"] == C.CF_MIN_GT_RMS
     # the units run in stage order: the split before training, scoring after evaluation
@@ -271,3 +281,78 @@ def test_write_report_puts_the_table_in_the_leaderboard_page(tmp_path):
     page = (out / "leaderboard.html").read_text(encoding="utf-8")
     assert page.index("Leaderboard") < page.index('<section id="geometry_sensitivity">')
     assert np.isfinite(read_pairs_csv(out / SENSITIVITY_PAIRS)["reproduced"]).all()
+
+
+# --- several training seeds ----------------------------------------------------------------------
+def _seed_rows(gap: float, spread: float) -> pd.DataFrame:
+    """Three seeds of ``grip`` and ``blind`` on four pairs of two families: grip reproduces
+    0.5 + seed * spread / 2 of the change on every pair, blind ``gap`` less (and one pair of
+    blind's seed 2 NaN: it drops out of that pair's seed mean)."""
+    rows = []
+    for k, (pair, family) in enumerate((("a", "mug"), ("b", "mug"), ("c", "cube"), ("d", "cube"))):
+        for seed in (0, 1, 2):
+            for base, shift in (("grip", 0.0), ("blind", gap)):
+                method = base if seed == 0 else f"{base}@seed{seed}"
+                rep = 0.5 + seed * spread / 2 - shift + 0.01 * k
+                if base == "blind" and seed == 2 and pair == "d":
+                    rep = np.nan
+                rows.append({"method": method, "pair": pair, "family": family,
+                             "variant": "smaller", "side": "right", "grasp_kind": "power",
+                             "reproduced": rep, "aperture_error": 0.001 * (1 + k),
+                             "gt_aperture_change": 0.004, "mpvpe_a": 0.01, "mpvpe_b": 0.01,
+                             "mpvpe": 0.01, "n_frames": 30.0})
+    return pd.DataFrame(rows)
+
+
+def test_seed_judgements_match_a_naive_computation():
+    from grip_bench.report.sensitivity import seed_judgements
+
+    rows = _seed_rows(gap=0.2, spread=0.04)
+    judged = seed_judgements(rows, compare_to="grip", n_boot=200, seed=0)
+    rep = judged[judged["score"] == "reproduced"].set_index("method")
+    # naive: per-seed means over pairs, in %
+    for base in ("grip", "blind"):
+        means = []
+        for seed in (0, 1, 2):
+            m = base if seed == 0 else f"{base}@seed{seed}"
+            means.append(100 * np.nanmean(rows.loc[rows["method"] == m, "reproduced"]))
+        assert rep.loc[base, "mean"] == pytest.approx(np.mean(means))
+        assert rep.loc[base, "seed_min"] == pytest.approx(min(means))
+        assert rep.loc[base, "seed_max"] == pytest.approx(max(means))
+        assert rep.loc[base, "seeds"] == 3 and rep.loc[base, "seed_labels"] == "0 1 2"
+    # the reference row is not judged against itself
+    assert rep.loc["grip", "verdict"] == "" and np.isnan(rep.loc["grip", "diff"])
+    blind = rep.loc["blind"]
+    grip_means = [100 * np.nanmean(rows.loc[rows["method"] == m, "reproduced"])
+                  for m in ("grip", "grip@seed1", "grip@seed2")]
+    blind_means = [100 * np.nanmean(rows.loc[rows["method"] == m, "reproduced"])
+                   for m in ("blind", "blind@seed1", "blind@seed2")]
+    assert blind["diff"] == pytest.approx(np.mean(blind_means) - np.mean(grip_means))
+    assert blind["spread"] == pytest.approx(max(np.ptp(grip_means), np.ptp(blind_means)))
+    # the paired interval is over pairs of seed-averaged scores: every pair is -20 points
+    # (pair d: blind's two finite seeds against grip's three, -18 points), so it is narrow
+    assert blind["diff_lo"] <= blind["diff"] <= blind["diff_hi"] < 0
+    assert blind["verdict"] == "differs"
+
+
+def test_a_gap_inside_the_seed_spread_is_noise_and_the_section_is_written(tmp_path):
+    from grip_bench.report.sensitivity import seed_judgements
+
+    rows = _seed_rows(gap=0.02, spread=0.1)  # 2 points apart, seeds 10 points apart
+    judged = seed_judgements(rows, compare_to="grip", n_boot=200, seed=0)
+    blind = judged[(judged["method"] == "blind") & (judged["score"] == "reproduced")].iloc[0]
+    assert abs(blind["diff"]) < blind["spread"] and blind["verdict"] == "within noise"
+    out = tmp_path / "out"
+    write_pairs_csv(out / SENSITIVITY_PAIRS, _seed_rows(gap=0.2, spread=0.04))
+    written, data = write_sensitivity_report(out)
+    assert "geometry_sensitivity_seeds.csv" in [p.name for p in written]
+    md = (out / "tables" / "geometry_sensitivity.md").read_text(encoding="utf-8")
+    assert "| blind | 0 1 2 | Change reproduced (%) |" in md and "| differs |" in md
+    assert any(n.startswith("Seeds 0 1 2: blind minus grip, change reproduced:")
+               and n.endswith("differs.") for n in data.notes)
+    # one seed only: no section, no seeds file (an earlier run's is removed)
+    write_pairs_csv(out / SENSITIVITY_PAIRS, _rows())
+    written, _ = write_sensitivity_report(out)
+    assert not (out / "tables" / "geometry_sensitivity_seeds.csv").exists()
+    assert "Seeds:" not in (out / "tables" / "geometry_sensitivity.md").read_text(
+        encoding="utf-8")
