@@ -6,8 +6,10 @@ Per candidate hand orientation (batched over candidates):
    precision (a pinch between the thumb and index pads, the other fingers tucked),
    tripod (thumb, index and middle pads, ring and little finger tucked), lateral (a key
    pinch: the fingers curled, the object pressed by the thumb pad against the side of the
-   index), bimanual (palm and fingers of each hand on a large object).
-2. *Place*: pinches put the object centre where the closed finger pads meet; the others
+   index), hook (the four fingers curled round a handle, palm and thumb off it), bimanual
+   (palm and fingers of each hand on a large object).
+2. *Place*: pinches put the object centre where the closed finger pads meet, a hook puts the
+   handle's bar under the proximal phalanges (its pre-shape must be clear of the object); the others
    start outside the object and sphere-trace the pre-shaped hand along its palm normal
    (lateral: its thumb side, the thumb left out) until its nearest vertex is ``GAP`` from
    the surface (distance fields are 1-Lipschitz, so stepping by the current clearance
@@ -17,8 +19,9 @@ Per candidate hand orientation (batched over candidates):
    until the part of the finger it moves touches the surface (``GAP``) or reaches its
    limit (GraspIt's auto-grasp scheme), found by a coarse sweep and a bisection.
 4. *Score*: thumb plus at least one finger in contact (palm and fingers for bimanual
-   holds), no penetration, clear of the table (closed, pre-shaped and in between), and a
-   wrist orientation close to the natural one for a hand coming from the subject; among
+   holds; for a hook two fingers or more, palm and thumb not touching), no penetration,
+   clear of the table (closed, pre-shaped and in between), and a wrist orientation close
+   to the natural one for a hand coming from the subject; among
    valid candidates thumb, index and middle contacts count most, the palm and the little
    finger least (``PART_SCORE``, after GRAB's contact frequencies).
 
@@ -84,23 +87,34 @@ _HALF_TUCKED = {"mcp": (30, 0, 0), "pip": (45, 0, 0), "dip": (20, 0, 0)}
 # object against the side of the index's middle phalanx.
 _CURLED = {"mcp": (45, 0, 0), "pip": (70, 0, 0), "dip": (30, 0, 0),
            "thumb_cmc": (-15, 32, 0), "thumb_mcp": (0, 0, 0), "thumb_ip": (0, 0, 0)}
+# Hook: the four fingers half bent at the PIP and DIP (a hook, open enough for the bar to come
+# in under the proximal phalanges), the thumb relaxed and adducted along the index's side,
+# where it stays (the hook holds without it).
+_HOOK = {"mcp": (5, 0, 0), "pip": (12, 0, 0), "dip": (8, 0, 0),
+         "thumb_cmc": (5, 8, 10), "thumb_mcp": (10, 0, 0), "thumb_ip": (10, 0, 0)}
 # Closing direction in local coordinates: fingers flex; the thumb's CMC also opposes
 # (power), or comes down onto the side of the index (lateral: adduction with some flexion).
 _THUMB_CMC_CLOSE = np.array([1.0, 0.35, 0.0]) / np.linalg.norm([1.0, 0.35, 0.0])
 _THUMB_CMC_LATERAL = np.array([0.5, -1.0, 0.0]) / np.linalg.norm([0.5, -1.0, 0.0])
 # Grasp types of one hand, and the two-handed hold of a large object. The generator draws a
 # type per grasp among those the object's size admits (GraspSynthesizer.grasp_types).
-GRASP_TYPES = ("power", "handle", "precision", "tripod", "lateral", "bimanual")
+GRASP_TYPES = ("power", "handle", "precision", "tripod", "lateral", "hook", "bimanual")
 PINCH_KINDS = ("precision", "tripod")  # the object sits where the finger pads meet
 # Largest thinnest extent (m) an object may have for each pinch type: the pre-shapes open
 # the thumb ~7.6 cm from the index pad (9 cm from between index and middle) at hand scale 1.
 PINCH_WIDTH = {"precision": 0.055, "tripod": 0.07, "lateral": 0.03}
 POWER_MIN_WIDTH = 0.048  # m; smaller objects slip out of a closed fist (measured: no grasp)
 LATERAL_MIN_HEIGHT = 0.06  # m; vertical extent a lateral pinch needs above the table
+# A hook needs room beyond its bar for the curled middle and distal phalanges: the handle's
+# centre line this high above the table (at hand scale 1). A frying
+# pan's rising handle (4-6 cm) has it; a knife's handle lying on the table (~1 cm) does not.
+HOOK_MIN_HEIGHT = 0.03  # m
+HOOK_GAP = 0.003  # m; pre-shape clearance between the bar and the proximal phalanges
+HOOK_MIN_FINGERS = 2  # fingers round the bar
 # Fingers a grasp type does not close (kept in their pre-shape).
 # (lateral: the index stays where placing left it, its side just off the object)
 _IDLE_FINGERS = {"precision": ("middle", "ring", "pinky"), "tripod": ("ring", "pinky"),
-                 "lateral": ("index",)}
+                 "lateral": ("index",), "hook": ("thumb",)}
 # Hand-frame quarter turn about the finger axis mapping the thumb side (+z) onto the palm
 # normal (-y): a lateral grasp faces the object with the side of its index.
 _LATERAL_TURN = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -140,7 +154,8 @@ def preshape_local(kind: str, table: dict | None = None, flat: bool = False) -> 
     flat: a pinch of a flat object lying on the table keeps the fingers it does not use
     out straight along the index (tucked under the palm they would reach the table).
     """
-    default = _PINCH if kind in PINCH_KINDS else _CURLED if kind == "lateral" else _OPEN
+    default = (_PINCH if kind in PINCH_KINDS else _CURLED if kind == "lateral"
+               else _HOOK if kind == "hook" else _OPEN)
     table = table or default
     local = np.array([table[_kind_of(j)] for j in range(15)], dtype=float)
     if kind in PINCH_KINDS and not flat:  # the fingers a pinch does not use: out of the way
@@ -154,12 +169,12 @@ def preshape_local(kind: str, table: dict | None = None, flat: bool = False) -> 
 
 def _close_dirs(kind: str) -> np.ndarray:
     """Local closing direction per joint (15, 3): flexion; a power grasp's thumb also
-    opposes, a lateral grasp's thumb adducts onto the index."""
+    opposes, a lateral grasp's thumb adducts onto the index (a hook's thumb does not close)."""
     d = np.zeros((15, 3))
     d[:, 0] = 1.0
     if kind == "lateral":
         d[12] = _THUMB_CMC_LATERAL
-    elif kind not in PINCH_KINDS:
+    elif kind not in (*PINCH_KINDS, "hook"):
         d[12] = _THUMB_CMC_CLOSE
     return d
 
@@ -336,7 +351,9 @@ class GraspSynthesizer:
     ) -> Grasp | None:
         """:meth:`search` for one grasp kind: the usual wrist rolls first, the far ones only
         when none of those holds (they rarely win the score: this halves the work)."""
-        target = self._target(kind, up) if target is None else np.asarray(target, float)
+        # (a hook holds a handle only: it is aimed at the handle whatever the caller's target)
+        target = (self._target(kind, up) if target is None or kind == "hook"
+                  else np.asarray(target, float))
         stages = [(ROLLS[:3], True, False), (ROLLS[3:], False, False)]
         if kind in PINCH_KINDS and self.mesh.extents[1] < FLAT_HEIGHT:
             stages.append((ROLLS[:3], True, True))
@@ -368,10 +385,15 @@ class GraspSynthesizer:
         wrap: bool,
         flat: bool = False,
     ) -> Grasp | None:
-        R, rolls = self._orientations(side, dirs, finger_ref, kind, rolls, wrap)
+        R, rolls = (self._hook_orientations(side, dirs, finger_ref, rolls, up) if kind == "hook"
+                    else self._orientations(side, dirs, finger_ref, kind, rolls, wrap))
+        if not len(R):
+            return None
         full, ids, sub = _light_hand(side, self.scale)
         local0 = np.broadcast_to(preshape_local(kind, flat=flat), (len(R), 15, 3)).copy()
-        if kind in PINCH_KINDS:  # object centred where the closed finger pads meet
+        if kind in (*PINCH_KINDS, "hook"):
+            # pinches: the object centred where the closed finger pads meet; hook: the bar
+            # under the proximal phalanges, just clear of them
             t = target[None] - np.einsum("cij,j->ci", R, self._anchor(sub, local0, kind))
         else:  # along the palm normal (lateral: the thumb side, which faces the object)
             n = R[:, :, 2] if kind == "lateral" else R @ full.palm_normal
@@ -385,6 +407,13 @@ class GraspSynthesizer:
             if above_table:
                 keep &= (up * v0[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
             ok[np.flatnonzero(ok)[~keep]] = False
+        if ok.any() and kind == "hook":
+            # placed, not traced: the pre-shape must already be clear of the object (it comes
+            # in along its palm normal and opens to it again when letting go)
+            k = np.flatnonzero(ok)
+            v0, _ = _pose(sub, R[k], t[k], local0[k])
+            sd = self.bound.signed_distance(self.df, v0.reshape(-1, 3), GAP).reshape(len(k), -1)
+            ok[k[sd.min(1) < GAP]] = False
         if not ok.any():
             return None
         R, t, local0, rolls = R[ok], t[ok], local0[ok], rolls[ok]
@@ -400,8 +429,10 @@ class GraspSynthesizer:
         long object at least 2 cm thick), a handle grasp when the family holds the object
         by its handle, and the pinches whose opening its thinnest extent fits
         (``PINCH_WIDTH``); a lateral pinch also needs the object to stand
-        ``LATERAL_MIN_HEIGHT`` tall (the curled fingers hang below the index). Widths scale
-        with the hand. Never empty: the family's own kinds when nothing else fits.
+        ``LATERAL_MIN_HEIGHT`` tall (the curled fingers hang below the index), and a hook
+        when a handle stands high enough for the curled fingers to pass behind or under it
+        (:meth:`_hook_admitted`). Widths scale with the hand. Never empty: the family's own
+        kinds when nothing else fits.
         """
         if self.large:
             return ["bimanual"]
@@ -412,13 +443,35 @@ class GraspSynthesizer:
             out.append("power")
         if self.handles and self.hint == "handle":
             out.append("handle")
+        hook = self._hook_admitted()
         for kind in ("precision", "tripod", "lateral"):
             fits = ext[0] <= PINCH_WIDTH[kind] * k
             if kind == "lateral":
                 fits &= bool(self.mesh.extents[1] >= LATERAL_MIN_HEIGHT)
             if fits:
                 out.append(kind)
+        if hook:
+            out.append("hook")
         return out or self._kinds()
+
+    def _hook_admitted(self) -> bool:
+        """Whether a hook fits: a handle whose centre line stands ``HOOK_MIN_HEIGHT`` (scaled
+        with the hand) above the table, so the curled fingers pass under or behind it."""
+        if not self.handles or self._handle_is_loop():
+            return False
+        h = self.handles[0]
+        return bool(h.point[1] - self.table_y >= HOOK_MIN_HEIGHT * self.scale)
+
+    def _handle_is_loop(self) -> bool:
+        """Whether the first handle is held out beside the body (a mug's loop: its bar 3 cm or
+        more from the body's centre line across the bar) rather than along it (a pan's).
+
+        Measured: hooking a mug's loop from outside, the curled fingers clear its thin bar and
+        close on the body behind it (contacts 5-6 cm from the bar), so loops admit no hook."""
+        h = self.handles[0]
+        axis = np.asarray(h.axis, float)
+        inward = self.centre - np.asarray(h.point, float)
+        return bool(np.linalg.norm(inward - (inward @ axis) * axis) >= 0.03)
 
     def _kinds(self) -> list[str]:
         """Grasp kinds to try in order: the object's own hint first, then fallbacks."""
@@ -431,7 +484,7 @@ class GraspSynthesizer:
         return ["power", "precision"]
 
     def _target(self, kind: str, up: float = 1.0) -> np.ndarray:
-        if kind == "handle":
+        if kind in ("handle", "hook"):
             return np.asarray(self.handles[0].point, float)
         if kind in (*PINCH_KINDS, "lateral"):  # pinch the upper part, clear of the table
             return np.array([self.centre[0], self.pinch_height(self.centre[1], up), self.centre[2]])
@@ -503,9 +556,52 @@ class GraspSynthesizer:
                 roll_of.append(r)
         return np.stack(Rs), np.asarray(roll_of)
 
+    def _hook_orientations(
+        self,
+        side: str,
+        approach_dirs: np.ndarray,
+        finger_ref: np.ndarray,
+        rolls: np.ndarray,
+        up: float = 1.0,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Hook wrist rotations (C, 3, 3) and their roll angles (C,): the fingers across the
+        handle's axis, both ways, turned by ``rolls / 2`` about the palm normal (a hook
+        tolerates less slant than a wrap), the palm normal each approach direction made
+        perpendicular to the axis (the bar lies across the finger crease).
+
+        Where the curled fingertips go: a handle held out from the object's body (a mug's
+        loop: its bar 3 cm or more from the body's centre line across the axis) is hooked
+        from outside, the fingertips between the bar and the body (the palm normal may not
+        point away from the body); a bar along the object's centre line (a pan's handle) is
+        hooked from above, the fingertips under it, so the object hangs in the hook (the
+        palm normal may not point up: ``up`` as in :meth:`search`)."""
+        axis = np.asarray(self.handles[0].axis, float)
+        inward = self.centre - np.asarray(self.handles[0].point, float)
+        inward -= (inward @ axis) * axis
+        loop = self._handle_is_loop()
+        Rs, roll_of = [], []
+        for d in np.asarray(approach_dirs, float):
+            n = -d - (-d @ axis) * axis  # palm faces the bar, perpendicular to it
+            if np.linalg.norm(n) < 0.3:
+                continue
+            n /= np.linalg.norm(n)
+            if (n @ inward < 0.0) if loop else (up * n[1] > 0.2):
+                continue
+            fw = np.cross(axis, n)
+            for s in (1.0, -1.0):
+                f0 = s * fw
+                base = float(np.arccos(np.clip(f0 @ finger_ref / max(np.linalg.norm(
+                    finger_ref), 1e-9), -1, 1)))
+                for r in rolls:
+                    Rs.append(_hand_rotation(side, _rotate(f0, n, 0.5 * r), n))
+                    roll_of.append(0.5 * abs(r) + 0.25 * base)
+        if not Rs:
+            return np.zeros((0, 3, 3)), np.zeros(0)
+        return np.stack(Rs), np.asarray(roll_of)
+
     def _wrap_axis(self, kind: str) -> np.ndarray | None:
         """Axis the fingers should wrap around: a handle's axis or a clearly long object axis."""
-        if kind == "handle":
+        if kind in ("handle", "hook"):
             return np.asarray(self.handles[0].axis, float)
         axes, spread = self._axes
         return axes[0] if spread[0] > 1.6 * spread[1] else None
@@ -528,6 +624,14 @@ class GraspSynthesizer:
         v, j = _pose(sub, np.eye(3)[None], np.zeros((1, 3)), local[:1])
         if kind == "lateral":  # the middle of the index's middle phalanx
             return 0.5 * (j[0, 2] + j[0, 3])
+        if kind == "hook":  # under the proximal phalanges, a little short of the PIP joints
+            pips, mcps = j[0, [2, 5, 11, 8]], j[0, [1, 4, 10, 7]]
+            crease = (0.15 * mcps + 0.85 * pips).mean(0)
+            nrm = np.asarray(sub.palm_normal, float)
+            proximal = np.isin(sub.bone_ids_subset,
+                               [CHAINS[f][0] + 1 for f in ("index", "middle", "ring", "pinky")])
+            skin = float(((v[0, proximal] - crease) @ nrm).max())  # palmar skin of the phalanges
+            return crease + nrm * (skin + 0.5 * self.handles[0].thickness + HOOK_GAP)
         palm = j[0, [0, 4, 10]].mean(0)  # wrist, middle and ring knuckles: palm centre
         return palm + 0.45 * (j[0, 5] - j[0, 4])  # a little towards the fingers
 
@@ -671,6 +775,8 @@ class GraspSynthesizer:
         n_fingers = near[:, 2:].sum(1)
         if kind == "bimanual":
             holds = near[:, 0] & (n_fingers >= 2) | (n_fingers >= 3)
+        elif kind == "hook":  # the fingers alone: palm and thumb off the object by design
+            holds = ~near[:, 0] & ~near[:, 1] & (n_fingers >= HOOK_MIN_FINGERS)
         else:
             holds = near[:, 1] & (n_fingers >= 1)
         clear = ((up * v[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE) if above_table \
