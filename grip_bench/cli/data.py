@@ -115,9 +115,10 @@ def dataset_info(data_dir: Path) -> dict:
 
 
 def grasp_type_counts(data_dir: Path, files: list[str]) -> dict[str, dict[str, int]]:
-    """family -> grasp type -> hands holding with it, over the sequence ``files`` (paths
-    relative to ``data_dir``) that a SynthGRAB ``manifest.json`` describes (its
-    ``sequences`` member); empty without one (real GRAB, SynthGRAB v1)."""
+    """family -> grasp type -> grasps of that type (a regrasping hand's two both count), over
+    the sequence ``files`` (paths relative to ``data_dir``) that a SynthGRAB
+    ``manifest.json`` describes (its ``sequences`` member); empty without one (real GRAB,
+    SynthGRAB v1)."""
     path = data_dir / "manifest.json"
     if not path.is_file():
         return {}
@@ -135,6 +136,8 @@ def grasp_type_counts(data_dir: Path, files: list[str]) -> dict[str, dict[str, i
             continue
         fam = out.setdefault(str(entry.get("family", "?")), Counter())
         fam.update(str(k) for k in entry["grasps"].values())
+        if isinstance(entry.get("regrasp"), dict):  # the first grasp of a regrasp counts too
+            fam.update(str(k) for k in entry["regrasp"].values())
     return {f: dict(sorted(c.items())) for f, c in sorted(out.items())}
 
 

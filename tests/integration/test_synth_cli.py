@@ -58,10 +58,12 @@ def test_synth_tiny_end_to_end(tmp_path, capsys):
     assert {k: v for k, v in manifest.items() if k not in drop} == \
         {k: v for k, v in m2.items() if k not in drop}
     # every grasping hand's type is in the manifest, and `data info` counts them per family
-    assert manifest["version"] == "2.0" and set(manifest["sequences"]) == {
+    assert manifest["version"] == "2.1" and set(manifest["sequences"]) == {
         f.relative_to(out).as_posix() for f in files}
     info = dataset_info(out)
-    hands = sum(len(e["grasps"]) for e in manifest["sequences"].values())
+    # (a regrasping hand's first grasp counts too)
+    hands = sum(len(e["grasps"]) + len(e.get("regrasp", {}))
+                for e in manifest["sequences"].values())
     assert sum(sum(c.values()) for c in info["grasp_types"].values()) == hands
     assert info["grasp_types"] == manifest["counts"]["grasp_types"]
     for shape in manifest["objects"].values():

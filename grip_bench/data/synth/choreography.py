@@ -2,8 +2,10 @@
 
 It follows GRAB's protocol (rest -> reach -> approach/grasp -> act by intent -> put back
 -> release -> retreat -> rest; an off-hand pass hands the object from the off hand to the
-dominant one in front of the chest, see :class:`.scene.Handover`) and lifts free hands
-over the table's front edge (:func:`_over_table`). It writes a :class:`Script`: wrist
+dominant one in front of the chest, see :class:`.scene.Handover`; a regrasp picks the
+object up with another grasp and puts it down again before the use grasp, see
+:class:`.scene.Regrasp` and :func:`_regrasp`) and lifts free hands over the table's front
+edge (:func:`_over_table`). It writes a :class:`Script`: wrist
 keys per hand, finger-pose keys per hand, object keys while it is carried; the ``act_*``
 functions are the intent-specific object keys. :mod:`.solve` turns the script into a
 whole-body motion.
@@ -17,6 +19,7 @@ import numpy as np
 
 from ...core import constants as C
 from ...core.frames import SIDES
+from .grasp import Grasp
 from .motion import rotation_about
 from .objects import ObjectInstance
 from .scene import BACKOFF_DIST, SIGN, TABLE_SIZE, Cast, wrist_of
@@ -24,6 +27,7 @@ from .script import Script
 from .world import USE_VERBS, Subject
 
 PREGRASP_DIST = 0.08  # m; the wrist pauses this far back along the approach before closing in
+REGRASP_MOVE_TURN = np.radians(40.0)  # rad; wrist paths turning more than this go round the object
 TABLE_LIFT = 0.08  # m; clearance of a hand length below the wrist when crossing the table edge
 AIR_CLEARANCE = 0.12  # m; hand room between a held object's lowest possible point and the table
 
@@ -79,28 +83,54 @@ def _over_table(cast: Cast, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, f
     return (1 - at) * a + at * b + np.array([0.0, deficit[at], 0.0]), at
 
 
+def _round_object(
+    obj_p: np.ndarray, a: np.ndarray, b: np.ndarray
+) -> tuple[np.ndarray, float] | None:
+    """Via (point (3,), progress) taking a wrist from ``a`` to ``b`` (world, m) round the
+    object centred at ``obj_p`` rather than through it: when the two directions from the
+    object differ by more than ``REGRASP_MOVE_TURN``, halfway between them (turned up when
+    they are opposite) at the larger of the two distances, and no lower than either end.
+    None when the path turns less."""
+    u, v = a - obj_p, b - obj_p
+    r = max(float(np.linalg.norm(u)), float(np.linalg.norm(v)))
+    u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
+    if np.arccos(np.clip(u @ v, -1.0, 1.0)) <= REGRASP_MOVE_TURN:
+        return None
+    w = u + v + np.array([0.0, 0.5, 0.0])
+    via = obj_p + r * w / np.linalg.norm(w)
+    via[1] = max(via[1], a[1], b[1])
+    return via, 0.5
+
+
 def reach_and_grasp(sc: Script, cast: Cast, sides: Sequence[str], obj_R: np.ndarray,
-                    obj_p: np.ndarray, on_table: bool) -> None:
+                    obj_p: np.ndarray, on_table: bool, grasps: dict | None = None,
+                    around: bool = False) -> None:
     """Reach (hand opening) to a pre-grasp pose, then close in (fingers closing as the palm
-    arrives)."""
+    arrives). ``grasps``: side -> Grasp to take (default ``cast.grasps``); ``around``: the
+    hand starts next to the object (after a regrasp's first grasp) and goes round it
+    (:func:`_round_object`) where it does not cross the table's edge."""
+    grasps = cast.grasps if grasps is None else grasps
     dist = max(
-        np.linalg.norm(wrist_of(obj_R, obj_p, cast.grasps[s])[1] - sc.wrist[s].last[0])
+        np.linalg.norm(wrist_of(obj_R, obj_p, grasps[s])[1] - sc.wrist[s].last[0])
         for s in sides
     )
     a, b = sc.phase("reach", float(np.clip(0.7 + 1.2 * dist, 0.9, 1.6)))
     for s in sides:
-        g = cast.grasps[s]
+        g = grasps[s]
         Rw, pw = wrist_of(obj_R, obj_p, g)
         pre = pw + PREGRASP_DIST * (obj_R @ g.approach) + np.array([0.0, 0.02, 0.0])
-        via = _over_table(cast, sc.wrist[s].last[0], pre) if on_table else None
+        start = sc.wrist[s].last[0]
+        via = _over_table(cast, start, pre) if on_table else None
+        if via is None and around:
+            via = _round_object(obj_p, start, pre)
         sc.move(s, a, b, pre, Rw, via)
         sc.shape(s, a, b, g.open_pose)
     a, b = sc.phase("approach", 0.55)
     for s in sides:
-        Rw, pw = wrist_of(obj_R, obj_p, cast.grasps[s])
+        Rw, pw = wrist_of(obj_R, obj_p, grasps[s])
         # contact with speed: few frames near but not holding
         sc.move(s, a, b, pw, Rw, ease="arrive")
-        sc.shape(s, a + int(0.45 * (b - a)), b, cast.grasps[s].hand_pose)
+        sc.shape(s, a + int(0.45 * (b - a)), b, grasps[s].hand_pose)
 
 
 def release_and_retreat(
@@ -139,15 +169,15 @@ def set_carrier(sc: Script, side: str | None) -> None:
         sc.carrier.append([sc.t, None, side])
 
 
-def detach(sc: Script, cast: Cast, side: str) -> None:
-    """``side`` lets go at the cursor: its wrist keys resume from its grasp at the current
-    object pose."""
+def detach(sc: Script, cast: Cast, side: str, grasp: Grasp | None = None) -> None:
+    """``side`` lets go at the cursor: its wrist keys resume from its grasp (``grasp``,
+    default ``cast.grasps[side]``) at the current object pose."""
     for span in sc.attached:
         if span[2] == side and span[1] is None:
             span[1] = sc.t
     if sc.carrier and sc.carrier[-1][2] == side and sc.carrier[-1][1] is None:
         set_carrier(sc, None)
-    Rw, pw = wrist_of(*sc.obj_pose, cast.grasps[side])
+    Rw, pw = wrist_of(*sc.obj_pose, cast.grasps[side] if grasp is None else grasp)
     tr = sc.wrist[side]
     if tr.keys[-1][0] < sc.t:
         tr.add(sc.t, pw, Rw)
@@ -376,6 +406,33 @@ def _offhand(sc: Script, cast: Cast, rng: np.random.Generator, amp: float,
     release_and_retreat(sc, cast, [D])
 
 
+def _regrasp(sc: Script, cast: Cast) -> None:
+    """The first grasp of a regrasp (:class:`.scene.Regrasp`): reach and close, lift the
+    object a little straight up, put it back down at its rest pose, let go and back off a
+    few cm along that grasp's approach, the fingers opened to its pre-shape. The object
+    rests, unheld, from the release until the use grasp closes."""
+    rg = cast.regrasp
+    R0, p0 = sc.obj_rest
+    sides = tuple(rg.grasps)
+    reach_and_grasp(sc, cast, sides, R0, p0, True, rg.grasps)
+    for i, s in enumerate(sides):
+        attach(sc, s, carrier=i == 0)
+    _carry(sc, "regrasp_lift", 0.6, p0 + np.array([0.0, rg.lift, 0.0]), R0)
+    _hold(sc, "regrasp_hold", 0.3)
+    _carry(sc, "regrasp_place", 0.6, p0, R0)
+    for s in sides:
+        detach(sc, cast, s, rg.grasps[s])
+    a, b = sc.phase("regrasp_release", 0.17)
+    for s in sides:
+        sc.shape(s, a, b, rg.grasps[s].open_pose)
+    a, b = sc.phase("regrasp_backoff", 0.35)
+    for s in sides:
+        g = rg.grasps[s]
+        Rw, pw = wrist_of(R0, p0, g)
+        sc.move(s, a, b, pw + rg.backoff * (R0 @ g.approach) + np.array([0.0, 0.02, 0.0]), Rw,
+                ease="leave")
+
+
 def in_air(cast: Cast, p: np.ndarray, margin: float = AIR_CLEARANCE) -> np.ndarray:
     """``p`` (world, m) raised where needed so that the object held there, however turned,
     keeps ``margin`` (times the hand scale) between its lowest possible point and the table
@@ -403,7 +460,10 @@ def choreograph(cast: Cast, amp: float, relaxed: dict) -> Script:
     if cast.intent == "offhand":
         _offhand(sc, cast, rng, amp, middle_point(cast))
     else:
-        reach_and_grasp(sc, cast, cast.sides, scene.obj_R, scene.obj_p, True)
+        if cast.regrasp is not None:
+            _regrasp(sc, cast)
+        reach_and_grasp(sc, cast, cast.sides, scene.obj_R, scene.obj_p, True,
+                        around=cast.regrasp is not None)
         for i, s in enumerate(cast.sides):
             attach(sc, s, carrier=i == 0)
         _act(sc, cast, rng, amp)

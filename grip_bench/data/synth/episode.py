@@ -12,6 +12,11 @@ puts it back.
 - :mod:`.contact`: hand-object contacts and GRAB contact labels;
 - :mod:`.caches`: what episodes reuse (per-object :class:`ObjectTools`, body and hand models).
 
+A drawn share of one-handed ``use`` episodes regrasp (``REGRASP_SHARE``, drawn from a
+stream of its own, :func:`draws_regrasp`): the hand first picks the object up with another
+grasp, puts it back down and lets go, then takes the use grasp (:class:`.scene.Regrasp`);
+when that cannot be made the episode is the one without it, unchanged.
+
 Here the motion is retried until every target is reachable (stepping the body closer,
 leaning more, shrinking the intent) and hands and object stay out of the table top
 (:func:`plan_motion`), and the result is written as a GRAB-layout :class:`Sequence`.
@@ -34,7 +39,7 @@ from ..sequence import Sequence, make_body_params, make_hand_params, make_rigid_
 from .caches import ObjectTools, body_model, hand_models
 from .choreography import choreograph
 from .contact import _min, _posed_hands, contact_labels, hand_contact, object_clearance
-from .grasp_plan import make_cast
+from .grasp_plan import make_cast, with_regrasp
 from .objects import ObjectInstance
 from .scene import (
     Cast,
@@ -60,8 +65,10 @@ IDLE_CURL = (0.3, 1.9)
 IDLE_CASCADE_DEG = (0.0, 8.0)
 IDLE_SPREAD_DEG = (-4.0, 8.0)
 IDLE_THUMB_DEG = ((-10.0, 15.0), (-10.0, 20.0))
-# Stream tags of the draws that must not depend on the intent or on the other draws.
-KIND_STREAM, IDLE_STREAM = 1, 2
+# Stream tags of the draws that must not depend on the intent or on the other draws:
+# the grasp type, the idle hands, whether a use episode regrasps and the regrasp itself.
+KIND_STREAM, IDLE_STREAM, REGRASP_DRAW_STREAM, REGRASP_STREAM = 1, 2, 3, 4
+REGRASP_SHARE = 1 / 3  # of one-handed ``use`` episodes (drawn per episode)
 
 
 # --- seeded sub-streams and idle hands ---------------------------------------------------------
@@ -99,6 +106,14 @@ def idle_poses(hands: dict, seed: int | np.random.SeedSequence) -> dict:
     (an idle hand drifts from the first to the second), drawn from their own stream."""
     rng = sub_stream(seed, IDLE_STREAM)
     return {s: np.stack([idle_pose(hands[s], rng), idle_pose(hands[s], rng)]) for s in SIDES}
+
+
+def draws_regrasp(seed: int | np.random.SeedSequence, intent: str, inst: ObjectInstance) -> bool:
+    """Whether the episode of ``seed`` regrasps: a one-handed ``use`` with probability
+    ``REGRASP_SHARE``, drawn from a stream of its own (no other draw of the episode moves)."""
+    if intent != "use" or inst.large:
+        return False
+    return bool(sub_stream(seed, REGRASP_DRAW_STREAM).random() < REGRASP_SHARE)
 
 
 # --- one episode -------------------------------------------------------------------------------
@@ -180,6 +195,7 @@ def make_episode(
     *,
     grasp_kind: str | None = None,
     varied_idle: bool = True,
+    regrasp: bool | None = False,
 ) -> Episode:
     """One SynthGRAB sequence.
 
@@ -190,6 +206,10 @@ def make_episode(
     grasp_kind: try this grasp type first instead of drawing one (one-handed intents).
     varied_idle: idle hands in drawn relaxed poses (:func:`idle_poses`); False: the hand
     model's relaxed pose (SynthGRAB v1).
+    regrasp: give a one-handed ``use`` a regrasp (:func:`.grasp_plan.with_regrasp`; its
+    draws come from a sub-stream of their own); None: draw whether (:func:`draws_regrasp`).
+    Without a different grasp, or when the regrasp's motion fails :func:`check_regrasp`,
+    the episode is the one without it (``cast.regrasp`` is None).
     Raises :class:`EpisodeFailed` when no grasp or no reachable motion exists.
     """
     tools = tools or ObjectTools(inst)
@@ -202,17 +222,63 @@ def make_episode(
         relaxed = idle_poses(hands, seed)
     else:
         relaxed = {s: hands[s].named_pose("relaxed").double().numpy() for s in SIDES}
+    if regrasp is None:
+        regrasp = draws_regrasp(seed, intent, inst)
+    if regrasp:
+        again = with_regrasp(cast, tools, sub_stream(seed, REGRASP_STREAM))
+        if again.regrasp is not None:
+            try:
+                return _finish(again, relaxed, tools, index)
+            except EpisodeFailed:
+                pass  # the episode without the regrasp
+    return _finish(cast, relaxed, tools, index)
+
+
+def _finish(cast: Cast, relaxed: dict, tools: ObjectTools, index: int) -> Episode:
+    """Plan the motion of ``cast``, label contacts and write the sequence."""
+    hands = hand_models(cast.subject.hand_scale)
     mo, sc, cast, verts, gaps = plan_motion(cast, relaxed)
     contacts, v_obj, reps, close = {}, {}, {}, {}
     for s in SIDES:
         contacts[s], v_obj[s], reps[s], close[s] = hand_contact(
             verts[s], hands[s], mo, tools, cast.scene, gaps[s]
         )
+    if cast.regrasp is not None:
+        check_regrasp(cast, mo, sc, contacts)
     labels = contact_labels(
         v_obj, contacts, hands, np.asarray(tools.contact_mesh.vertices), reps, close
     )
     seq = build_sequence(cast, mo, labels, index)
     return Episode(seq, mo, sc, cast, contacts, tools.contact_mesh)
+
+
+def hold_spans(attached: np.ndarray) -> list[tuple[int, int]]:
+    """Runs ``[a, b)`` of True in a (T,) bool mask (the frames a hand holds the object)."""
+    d = np.diff(np.concatenate([[0], attached.astype(int), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(),
+                    strict=True))
+
+
+def check_regrasp(cast: Cast, mo: Motion, sc: Script, contacts: dict) -> None:
+    """:class:`EpisodeFailed` unless each regrasping hand holds twice and touches the object
+    nowhere on its way from the first grasp (backed off, open) to the use grasp's pre-grasp
+    pose (the ``reach`` after ``regrasp_backoff``): a hand swept through or along the object
+    there would be a contact no grasp explains."""
+    names = [p[0] for p in sc.phases]
+    k = names.index("regrasp_backoff") + 1
+    if k >= len(names) or names[k] != "reach":
+        raise EpisodeFailed(f"{cast.inst.name}: no reach after the regrasp's backoff")
+    _, a, b = sc.phases[k]
+    for s in cast.regrasp.grasps:
+        spans = hold_spans(mo.attached[s])
+        if len(spans) != 2:
+            raise EpisodeFailed(f"{cast.inst.name}: regrasp with {len(spans)} holds")
+        touch = contacts[s].grasp[a: b + 1]
+        if touch.any():
+            pen = float(contacts[s].penetration[a: b + 1].max())
+            raise EpisodeFailed(
+                f"{cast.inst.name}: the hand touches the object in {int(touch.sum())} frames "
+                f"(up to {pen * 1000:.1f} mm deep) on its way to the use grasp")
 
 
 def build_sequence(cast: Cast, mo: Motion, labels: np.ndarray, index: int) -> Sequence:

@@ -9,7 +9,10 @@ then GRAB names, ``manifest.json`` and a quality report next to GRAB's statistic
 The manifest also records what the GRAB-layout files cannot hold (docs/contract.md, "Data
 on disk"): per sequence file the grasp type of each hand that holds the object
 (``sequences``), per object its shape variation (``objects``), and the grasp-type counts per
-family (``counts.grasp_types``; ``grip-bench data info`` prints them).
+family (``counts.grasp_types``; ``grip-bench data info`` prints them). A ``use`` sequence
+with a regrasp (:func:`.episode.draws_regrasp`) has ``regrasp``: side -> the type of the
+grasp the hand picked the object up with and put it down again before its use grasp
+(``grasps``); both count.
 
 Every random choice comes from ``np.random.SeedSequence`` entropy derived from
 ``(seed, sequence index)``, so the arrays do not depend on the worker count.
@@ -174,7 +177,7 @@ def run_group(
         for attempt, intent in enumerate(_attempts(item.intent)):
             entropy = np.random.SeedSequence([seed, item.index, attempt])
             try:
-                ep = make_episode(subject, inst, intent, entropy, tools)
+                ep = make_episode(subject, inst, intent, entropy, tools, regrasp=None)
             except EpisodeFailed as err:
                 res["replaced"] += 1
                 res["error"] = str(err)
@@ -187,6 +190,8 @@ def run_group(
                        intent=intent, frames=ep.sequence.n_frames, stats=episode_stats(ep),
                        family=inst.family,
                        grasps={s: g.kind for s, g in sorted(ep.cast.grasps.items())})
+            if ep.cast.regrasp is not None:
+                res["regrasp"] = {s: g.kind for s, g in sorted(ep.cast.regrasp.grasps.items())}
             break
         results.append(res)
     return results
@@ -194,7 +199,10 @@ def run_group(
 
 def episode_stats(ep: Episode) -> dict:
     """Quality numbers of one episode (sums, so the report can pool them)."""
+    from .episode import hold_spans
+
     mo, large = ep.motion, ep.cast.inst.large
+    spans = {s: hold_spans(mo.attached[s]) for s in ep.contacts}
     st = {"frames": mo.n_frames, "hands": {}}
     supported = np.zeros(mo.n_frames, bool)
     for s, c in ep.contacts.items():
@@ -206,14 +214,14 @@ def episode_stats(ep: Episode) -> dict:
             rule = (parts[:, 0] & (n_fingers >= 2)) | (n_fingers >= 3) if len(parts) else parts
         else:
             rule = parts[:, 1] & (n_fingers >= 1) if len(parts) else parts
-        first_hold = int(np.argmax(mo.attached[s])) if mo.attached[s].any() else mo.n_frames
         st["hands"][s] = {
             "grasp_frames": int(g.sum()),
             "pen_sum": float(c.penetration[g].sum()),
             "pen_max": float(c.penetration[g].max()) if g.any() else 0.0,
             "rule": int(np.sum(rule)),
             "parts": [int(x) for x in parts.sum(0)] if len(parts) else [0] * 6,
-            "pre_hold_near": int(g[:first_hold].sum()),
+            "pre_hold_near": _pre_hold_near(g, spans[s]),
+            "holds": max(len(spans[s]), 1) if g.any() else 0,  # a regrasping hand holds twice
             "table_gap": float(c.table_gap),
         }
     moved = np.zeros(mo.n_frames, bool)
@@ -222,6 +230,21 @@ def episode_stats(ep: Episode) -> dict:
     st["unsupported_moves"] = int((moved & ~(supported & np.roll(supported, 1))).sum())
     st["intent"] = ep.cast.intent
     return st
+
+
+def _pre_hold_near(near: np.ndarray, spans: list[tuple[int, int]]) -> int:
+    """Frames a hand is near the object (``near`` (T,) bool) before each of its holds
+    (``spans``: frame runs ``[a, b)``): every near frame before the first hold; before a
+    later hold (a regrasp) the run of near frames that ends where it starts (the frames
+    before it are the previous grasp's release)."""
+    if not spans:
+        return int(near.sum())
+    n = int(near[: spans[0][0]].sum())
+    for (_, prev_end), (start, _) in zip(spans[:-1], spans[1:], strict=True):
+        gap = near[prev_end:start]
+        clear = np.flatnonzero(~gap)
+        n += len(gap) - (int(clear[-1]) + 1 if len(clear) else 0)
+    return n
 
 
 # --- orchestration
@@ -310,8 +333,7 @@ def generate(out_dir: str | os.PathLike, profile: str = "smoke", seed: int = 0,
         "generator": GENERATOR_NAME, "version": GENERATOR_VERSION, "seed": int(seed),
         "profile": prof.name, "workers": workers, "splits": splits,
         "counts": _counts(results, splits),
-        "sequences": {r["file"]: {"family": r["family"], "intent": r["intent"],
-                                  "grasps": r["grasps"]} for r in results if r["ok"]},
+        "sequences": {r["file"]: _sequence_entry(r) for r in results if r["ok"]},
         "objects": {o.name: {"family": o.family, **o.shape} for o in objects},
         "subjects": [s.__dict__ for s in subjects], "quality": report,
         "data_hash": dataset_hash(out), "wall_time_s": round(time.perf_counter() - start, 1),
@@ -320,6 +342,15 @@ def generate(out_dir: str | os.PathLike, profile: str = "smoke", seed: int = 0,
     if progress:
         print(format_report(report, manifest))
     return manifest
+
+
+def _sequence_entry(r: dict) -> dict:
+    """A written sequence's manifest entry: family, intent, grasp type per holding hand and,
+    for a regrasp, the type of each hand's first (put-down) grasp."""
+    entry = {"family": r["family"], "intent": r["intent"], "grasps": r["grasps"]}
+    if r.get("regrasp"):
+        entry["regrasp"] = r["regrasp"]
+    return entry
 
 
 def _counts(results: list[dict], splits: dict[str, list[str]]) -> dict:
@@ -332,16 +363,17 @@ def _counts(results: list[dict], splits: dict[str, list[str]]) -> dict:
         "intents": dict(sorted(Counter(r["verb"] for r in ok).items())),
         "splits": dict(Counter(split_of[r["obj"]] for r in ok)),
         "objects": len({r["obj"] for r in ok}),
+        "regrasps": sum(1 for r in ok if r.get("regrasp")),
         "grasp_types": grasp_type_counts(r for r in ok),
     }
 
 
 def grasp_type_counts(results) -> dict:
-    """family -> grasp type -> number of hands holding with it (each hand of a sequence
-    counts once), families and types sorted."""
+    """family -> grasp type -> number of grasps of that type (each hand of a sequence counts
+    once per grasp: twice when it regrasps), families and types sorted."""
     out = defaultdict(Counter)
     for r in results:
-        for kind in r["grasps"].values():
+        for kind in (*r["grasps"].values(), *(r.get("regrasp") or {}).values()):
             out[r["family"]][kind] += 1
     return {f: dict(sorted(c.items())) for f, c in sorted(out.items())}
 
@@ -362,7 +394,7 @@ def quality_report(results: list[dict], objects: list[ObjectInstance]) -> dict:
             tot["pen"] += h["pen_sum"]
             tot["rule"] += h["rule"]
             tot["pre_hold"] += h["pre_hold_near"]
-            tot["holds"] += h["grasp_frames"] > 0
+            tot["holds"] += h.get("holds", int(h["grasp_frames"] > 0))
             pen_max = max(pen_max, h["pen_max"])
             tot["table_gap_min"] = min(tot.get("table_gap_min", np.inf), h["table_gap"])
         parts += hands["right"]["parts"]

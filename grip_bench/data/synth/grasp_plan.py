@@ -13,6 +13,10 @@ admits (:meth:`GraspSynthesizer.grasp_types`) by a stream of its own (``kind_rng
 depends on neither the intent nor the arm's path; when the drawn type finds no grasp the
 others follow in a drawn order. Approach azimuths, elevations and the preferred finger
 direction are jittered per episode (``APPROACH_JITTER_DEG``, ``FINGER_JITTER_DEG``).
+
+Regrasp (:func:`with_regrasp`): a one-handed ``use`` cast may get a first grasp that the
+hand puts down again before it takes the use grasp (:class:`.scene.Regrasp`): another
+grasp type the object admits, or the same type from a clearly different wrist pose.
 """
 
 from __future__ import annotations
@@ -27,7 +31,16 @@ from .choreography import use_verb
 from .grasp import AVOID_CLEARANCE, Grasp, GraspSynthesizer
 from .motion import rotation_about
 from .objects import ObjectInstance
-from .scene import BACKOFF_DIST, SIGN, Cast, EpisodeFailed, Handover, Scene, long_axis_xz
+from .scene import (
+    BACKOFF_DIST,
+    SIGN,
+    Cast,
+    EpisodeFailed,
+    Handover,
+    Regrasp,
+    Scene,
+    long_axis_xz,
+)
 from .world import Subject
 
 HAND_CLEARANCE = 0.01  # m; minimum distance between the two hands holding one object
@@ -35,6 +48,14 @@ HAND_CLEARANCE = 0.01  # m; minimum distance between the two hands holding one o
 # preferred finger direction (yaw, pitch), so wrists come in from varied directions.
 APPROACH_JITTER_DEG = (15.0, 10.0)
 FINGER_JITTER_DEG = (40.0, 20.0)
+# Regrasp: the first grasp lifts the object this high (m, drawn), the hand backs off this
+# far after letting go (m, drawn; at least as far as its open hand needs to clear the
+# object, plus REGRASP_CLEAR), and a first grasp of the use grasp's own type must turn the
+# wrist at least REGRASP_MIN_TURN_DEG from it (approach directions closer are not tried).
+REGRASP_LIFT = (0.05, 0.10)
+REGRASP_BACKOFF = (0.03, 0.06)
+REGRASP_CLEAR = 0.01
+REGRASP_MIN_TURN_DEG = 35.0
 
 # One hand's part of an off-hand pass: world approach directions (A, 3), the object-frame
 # point it aims at (3,) and the grasp kinds it tries, in order.
@@ -313,6 +334,53 @@ def offhand_grasps(tools: ObjectTools, subject: Subject, scene: Scene,
         if found is not None:
             return found
     return None
+
+
+# --- regrasp ----------------------------------------------------------------------------
+def wrist_turn(g1: Grasp, g2: Grasp) -> float:
+    """Angle (rad) between the wrist orientations of two grasps of one object."""
+    c = (np.trace(g1.R.T @ g2.R) - 1.0) / 2.0
+    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def regrasp_grasp(synth: GraspSynthesizer, side: str, obj_R: np.ndarray, use: Grasp,
+                  rng: np.random.Generator) -> Grasp | None:
+    """A first grasp for ``side`` that differs from the use grasp ``use``, or None.
+
+    The other admitted types first (in a drawn order), from a jittered one-hand approach
+    fan; when none holds (or the object admits one type), ``use``'s own type from the
+    approach directions at least ``REGRASP_MIN_TURN_DEG`` from ``use``'s, kept only when
+    the wrist turns that much.
+    """
+    dirs, finger = jittered_approach(side, rng, (0, 30, 60), (0, 35, 70))
+    for kind in grasp_order(synth, rng):
+        if kind == use.kind:
+            continue
+        g = search_grasp(synth, side, obj_R, dirs, rng, kind=kind, finger_world=finger)
+        if g is not None:
+            return g
+    min_turn = np.radians(REGRASP_MIN_TURN_DEG)
+    far = dirs[dirs @ (obj_R @ use.approach) < np.cos(min_turn)]
+    if not len(far):
+        return None
+    g = search_grasp(synth, side, obj_R, far, rng, kind=use.kind, finger_world=finger)
+    return g if g is not None and wrist_turn(g, use) >= min_turn else None
+
+
+def with_regrasp(cast: Cast, tools: ObjectTools, rng: np.random.Generator) -> Cast:
+    """``cast`` with a :class:`Regrasp` (first grasp, lift, backoff drawn from ``rng``);
+    ``cast`` itself when it is not a one-handed ``use`` or no different grasp exists."""
+    if cast.intent != "use" or len(cast.sides) != 1 or cast.handover is not None:
+        return cast
+    side = cast.sides[0]
+    scale = cast.subject.hand_scale
+    g = regrasp_grasp(tools.synth(scale), side, cast.scene.obj_R, cast.grasps[side], rng)
+    if g is None:
+        return cast
+    lift = float(rng.uniform(*REGRASP_LIFT))
+    backoff = max(float(rng.uniform(*REGRASP_BACKOFF)),
+                  clear_distance(tools, g, scale) + REGRASP_CLEAR)
+    return Cast(**{**cast.__dict__, "regrasp": Regrasp({side: g}, lift, backoff)})
 
 
 # --- the cast ----------------------------------------------------------------------------

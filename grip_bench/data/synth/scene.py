@@ -191,6 +191,17 @@ class Handover:
     mid_R: np.ndarray  # (3, 3) at the handover, and when put back
 
 
+@dataclass(frozen=True)
+class Regrasp:
+    """A regrasp before a ``use`` motion: the hand first picks the object up with another
+    grasp, lifts it ``lift`` and puts it back down at its rest pose, lets go and backs off
+    ``backoff`` along that grasp's approach, then takes the use grasp (``Cast.grasps``)."""
+
+    grasps: dict  # side -> Grasp: the hand's first grasp (object frame)
+    lift: float  # m, how high the first grasp lifts the object
+    backoff: float  # m, how far the wrist backs off after letting go of the first grasp
+
+
 @dataclass
 class Cast:
     """What one episode is about: who, what, which intent, which grasps (object frame)."""
@@ -207,6 +218,7 @@ class Cast:
     lean_gain: float = 1.0  # multiplies the torso lean (raised when a low target is out of reach)
     handover: Handover | None = None  # how an off-hand pass hands the object over
     backoff_off: float = BACKOFF_DIST  # m, how far the off hand backs off after a flip's handover
+    regrasp: Regrasp | None = None  # a first grasp, put down again before the use grasp
 
     @property
     def bimanual(self) -> bool:
@@ -217,3 +229,22 @@ class Cast:
         """Object rotation (3, 3) once put back (a flipping off-hand pass puts it down upside
         down)."""
         return self.scene.obj_R if self.handover is None else self.handover.mid_R
+
+    def grasp_masks(self, side: str, attached: np.ndarray) -> list[tuple[np.ndarray, Grasp]]:
+        """Which grasp ``side`` holds with at each frame: ``(frames (T,) bool, Grasp)`` pairs
+        covering all frames (none for a hand without a grasp). ``attached`` (T,) bool: the
+        frames the hand holds the object.
+
+        With a regrasp the frames before the hand's second hold (a run of ``attached``)
+        belong to its first grasp (``regrasp.grasps``), the others to ``grasps[side]``.
+        """
+        every = np.ones(len(attached), bool)
+        if side not in self.grasps:  # a hand that takes no part holds nothing
+            return []
+        if self.regrasp is None or side not in self.regrasp.grasps:
+            return [(every, self.grasps[side])]
+        starts = np.flatnonzero(np.diff(np.concatenate([[False], attached]).astype(int)) == 1)
+        if len(starts) < 2:
+            return [(every, self.grasps[side])]
+        first = np.arange(len(attached)) < starts[1]
+        return [(first, self.regrasp.grasps[side]), (~first, self.grasps[side])]

@@ -209,9 +209,9 @@ def solve(body: ProceduralBody, sc: Script, cast: Cast) -> Motion:
     targets = {}
     for s in SIDES:
         p, R = sc.wrist[s].sample(T)
-        m = attached[s]
-        if m.any():
-            R[m], p[m] = wrist_of(obj_R[m], obj_p[m], cast.grasps[s])
+        for sel, g in cast.grasp_masks(s, attached[s]):  # two grasps when the hand regrasps
+            m = attached[s] & sel
+            R[m], p[m] = wrist_of(obj_R[m], obj_p[m], g)
         targets[s] = (p, R)
     transl = np.broadcast_to(scene.pelvis, (T, 3)).copy()
     go, pose = _posture(body, scene, targets, _look_targets(obj_p, scene), T, cast.lean_gain)
@@ -221,14 +221,16 @@ def solve(body: ProceduralBody, sc: Script, cast: Cast) -> Motion:
     wrists, _ = _fk_wrists(body, go, pose, transl, fingers)
     obj_R, obj_p = obj_R.copy(), obj_p.copy()
     for k, s in enumerate(SIDES):  # the object goes where the carrying hand really is
-        m = carrier == k
-        if m.any():
-            obj_R[m], obj_p[m] = object_of(wrists[s][0][m], wrists[s][1][m], cast.grasps[s])
+        for sel, g in cast.grasp_masks(s, attached[s]):
+            m = (carrier == k) & sel
+            obj_R[m], obj_p[m] = object_of(wrists[s][0][m], wrists[s][1][m], g)
     for k, s in enumerate(SIDES):  # a second holding hand follows the object as carried
         dep = attached[s] & (carrier != k)
         if dep.any():
             p, R = targets[s][0].copy(), targets[s][1].copy()
-            R[dep], p[dep] = wrist_of(obj_R[dep], obj_p[dep], cast.grasps[s])
+            for sel, g in cast.grasp_masks(s, attached[s]):
+                m = dep & sel
+                R[m], p[m] = wrist_of(obj_R[m], obj_p[m], g)
             targets[s] = (p, R)
             pose, r = _ik(body, go, pose, transl, targets, swivel, (s,))
             reached &= r

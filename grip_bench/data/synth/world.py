@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 GENERATOR_NAME = "SynthGRAB"
-GENERATOR_VERSION = "2.0"
+GENERATOR_VERSION = "2.1"  # 2.1: hook grasps, regrasps in a third of one-handed use sequences
 
 # GRAB's intents; "use" becomes an object-specific verb as in GRAB's file names.
 INTENTS = ("lift", "pass", "use", "offhand")
