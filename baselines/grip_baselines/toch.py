@@ -22,6 +22,8 @@ the pose. Lengths are metres.
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -44,13 +46,24 @@ __all__ = [
     "field_losses",
     "fit_hand_to_field",
     "hit_pos_weight",
+    "correspondence_fields",
     "ray_mesh_hits",
+    "ray_mesh_hits_batch",
 ]
 
 FIELD_DIM = 5  # hit, signed distance (m), canonical hand point (m)
 _BARY_TOL = 1e-9  # inclusive barycentric bounds: a ray through an edge or vertex still hits
-_BRANCH = 8  # children per node of the broad-phase sphere tree
 _SPHERE_MARGIN = 1e-9  # m; bounding spheres are padded so rounding never culls a true hit
+# Broad-phase grid fixed to the rays (see _candidates). Cell side: ~ the hand's triangle
+# size, so a triangle's cell lists the few rays near it; a coarser cell only when a ray
+# set spans more than _GRID_MAX_SIDE cells (memory). _GRID_SLACK pads the reach for the
+# rounding of a centre's cell. A grid reaches whole multiples of _GRID_REACH_STEP mm (a
+# hand's largest triangle rarely asks for a rebuild). _GRID_CACHE: ray sets (objects) kept.
+_GRID_CELL = 0.005  # m
+_GRID_MAX_SIDE = 160
+_GRID_SLACK = 1e-6  # m
+_GRID_REACH_STEP = 4  # mm
+_GRID_CACHE = 8
 
 
 # ----------------------------------------------------------------------------- ray casting
@@ -68,8 +81,12 @@ def _near_segment(
 
 
 def _morton_order(points: torch.Tensor) -> torch.Tensor:
-    """Order of ``points (F, 3)`` along a Z-order curve (10 bits per axis): neighbours in
-    the order are neighbours in space, so consecutive runs make tight groups."""
+    """Order of ``points (F, 3)`` along a Z-order curve (10 bits per axis).
+
+    Only breaks exact ties now: the first sphere-tree broad phase listed a ray's candidate
+    triangles in this order, so of two hits at exactly the same distance it kept the one
+    earlier here; :func:`ray_mesh_hits_batch` keeps that choice, so its output is the
+    same bit for bit."""
     lo, hi = points.amin(0), points.amax(0)
     q = ((points - lo) / (hi - lo).clamp(min=1e-12) * 1023).long()
     code = torch.zeros(len(points), dtype=torch.long)
@@ -79,46 +96,109 @@ def _morton_order(points: torch.Tensor) -> torch.Tensor:
     return torch.argsort(code)
 
 
-def _sphere_tree(
-    centre: torch.Tensor, radius: torch.Tensor
-) -> tuple[torch.Tensor, list[tuple[torch.Tensor, torch.Tensor]]]:
-    """Bounding-sphere hierarchy over triangles sorted along a Z-order curve.
+@dataclass(frozen=True)
+class _RayGrid:
+    """Uniform grid over the reach of fixed ray segments. Cell ``c`` lists, in
+    ``rays[start[c]:start[c + 1]]``, the rays whose segment passes within ``reach_mm``
+    millimetres of its centre, nearest first by whole millimetres: the entries with
+    ``key <= c * (reach_mm + 1) + k`` are the rays within ``k`` mm (``k <= reach_mm``)."""
 
-    Level 0 is the sorted triangles; a node of level k bounds ``_BRANCH`` consecutive
-    nodes of level k-1 (node j has children ``j*_BRANCH ...``). Returns the sort order
-    and ``[(centre (n_k, 3), radius (n_k,))]`` from level 0 up to a level of at most
-    ``_BRANCH**2`` nodes.
-    """
-    order = _morton_order(centre)
-    levels = [(centre[order], radius[order])]
-    while len(levels[-1][0]) > _BRANCH**2:
-        c, r = levels[-1]
-        kids = torch.arange(-(-len(c) // _BRANCH) * _BRANCH).clamp(max=len(c) - 1)
-        kids = kids.reshape(-1, _BRANCH)  # (n_k, branch); the last node repeats its tail
-        g_c = c[kids].mean(1)
-        g_r = ((c[kids] - g_c[:, None]).norm(dim=-1) + r[kids]).amax(1)
-        levels.append((g_c, g_r))
-    return order, levels
+    lo: torch.Tensor  # (3,) m, corner of cell (0, 0, 0)
+    cell: float  # m, cell side
+    dims: tuple[int, int, int]
+    reach_mm: int
+    start: torch.Tensor  # (n_cells + 1,) int64 offsets into rays / key
+    rays: torch.Tensor  # (nnz,) int64 ray ids
+    key: torch.Tensor  # (nnz,) int64 cell * (reach_mm + 1) + ceil(distance / mm), ascending
+
+
+_GRIDS: OrderedDict[tuple, _RayGrid] = OrderedDict()  # most recently used last
+
+
+def _grid_cell(o: np.ndarray, d: np.ndarray, max_dist: float) -> float:
+    """Cell side (m) of the ray grid of ``o, d (N, 3)``: ``_GRID_CELL``, or coarser when
+    the segments span more than ``_GRID_MAX_SIDE`` cells (bounded memory)."""
+    ends = np.concatenate([o - max_dist * d, o + max_dist * d])
+    return max(_GRID_CELL, float((ends.max(0) - ends.min(0)).max()) / _GRID_MAX_SIDE)
+
+
+def _ray_grid(o: np.ndarray, d: np.ndarray, max_dist: float, reach_mm: int) -> _RayGrid:
+    """A :class:`_RayGrid` of rays ``o, d (N, 3)`` that reaches at least ``reach_mm``,
+    cached per ray set: the rays of a prediction are the object's fixed surface samples,
+    the same for every frame, window and hand, while only the hand moves. A wider reach
+    than the cached grid's rebuilds it (rounded up to ``_GRID_REACH_STEP`` mm)."""
+    key = (hashlib.sha1(o.tobytes() + d.tobytes()).hexdigest(), o.shape, max_dist)
+    grid = _GRIDS.get(key)
+    if grid is not None and grid.reach_mm >= reach_mm:
+        _GRIDS.move_to_end(key)
+        return grid
+    reach_mm = -(-reach_mm // _GRID_REACH_STEP) * _GRID_REACH_STEP
+    reach = reach_mm * 1e-3
+    a, b = o - max_dist * d, o + max_dist * d  # segment ends (N, 3)
+    h = _grid_cell(o, d, max_dist)
+    lo = np.minimum(a, b).min(0) - reach - h
+    dims = np.ceil((np.maximum(a, b).max(0) + reach + h - lo) / h).astype(np.int64)
+    keys, owners = [], []
+    for i in range(len(o)):  # once per ray set: the cells of each ray's dilated box
+        i0 = np.clip(np.floor((np.minimum(a[i], b[i]) - reach - lo) / h) - 1, 0, dims - 1)
+        i1 = np.clip(np.floor((np.maximum(a[i], b[i]) + reach - lo) / h) + 1, 0, dims - 1)
+        axes = [np.arange(i0[k], i1[k] + 1, dtype=np.int64) for k in range(3)]
+        idx = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        w = lo + (idx + 0.5) * h - o[i]
+        s = np.clip(w @ d[i], -max_dist, max_dist)
+        dist = np.sqrt(((w - s[:, None] * d[i]) ** 2).sum(1))
+        near = dist <= reach
+        lin = (idx[near, 0] * dims[1] + idx[near, 1]) * dims[2] + idx[near, 2]
+        keys.append(lin * (reach_mm + 1) + np.ceil(dist[near] / 1e-3).astype(np.int64))
+        owners.append(np.full(len(lin), i, np.int64))
+    k, ray = np.concatenate(keys), np.concatenate(owners)
+    order = np.argsort(k, kind="stable")
+    counts = np.bincount(k // (reach_mm + 1), minlength=int(dims.prod()))
+    grid = _RayGrid(
+        torch.as_tensor(lo), h, tuple(int(x) for x in dims), reach_mm,
+        torch.as_tensor(np.r_[0, np.cumsum(counts)]), torch.as_tensor(ray[order]),
+        torch.as_tensor(k[order]),
+    )
+    _GRIDS[key] = grid
+    _GRIDS.move_to_end(key)
+    while len(_GRIDS) > _GRID_CACHE:
+        _GRIDS.popitem(last=False)
+    return grid
 
 
 def _candidates(
     o: torch.Tensor, d: torch.Tensor, centre: torch.Tensor, radius: torch.Tensor,
     max_dist: float,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Broad phase: ray/triangle pairs ``(rows, faces)`` whose bounding spheres come
-    within reach of the ray segments, found by descending the sphere tree."""
-    order, levels = _sphere_tree(centre, radius)
-    top_c, top_r = levels[-1]
-    rows, nodes = torch.nonzero(
-        _near_segment(o[:, None], d[:, None], top_c[None], top_r[None], max_dist), as_tuple=True
-    )
-    for c, r in reversed(levels[:-1]):
-        kids = (nodes[:, None] * _BRANCH + torch.arange(_BRANCH)).clamp(max=len(c) - 1)
-        rows, nodes = rows[:, None].expand_as(kids).reshape(-1), kids.reshape(-1)
-        keep = _near_segment(o[rows], d[rows], c[nodes], r[nodes], max_dist)
-        rows, nodes = rows[keep], nodes[keep]
-    pairs = torch.unique(rows * len(order) + nodes)  # clamped tails repeat: drop duplicates
-    return pairs // len(order), order[pairs % len(order)]
+    """Broad phase: every ray/triangle pair ``(ray (P,), triangle (P,))`` whose bounding
+    sphere ``(centre (M, 3), radius (M,))`` comes within reach of the ray segment
+    (``_near_segment``), for any number ``M`` of triangles (all posed frames at once).
+
+    A triangle is looked up in the grid cell of its centre: when its sphere comes within
+    ``r`` of a segment, the centre is within ``r`` of it and the cell's centre within
+    ``r + h sqrt(3)/2``, so the cell's rays within that distance (rounded up to whole
+    millimetres) are all the rays the triangle can reach."""
+    finite = torch.isfinite(centre).all(1) & torch.isfinite(radius)
+    tri = torch.nonzero(finite)[:, 0]
+    if len(tri) == 0:
+        return tri, tri
+    on = o.numpy(), d.numpy()
+    slack = _SPHERE_MARGIN + _grid_cell(*on, max_dist) * 3**0.5 / 2 + _GRID_SLACK
+    mm = torch.ceil((radius[tri] + slack) / 1e-3).long()  # (M',) reach, whole mm
+    grid = _ray_grid(*on, max_dist, int(mm.max()))
+    idx = torch.floor((centre[tri] - grid.lo) / grid.cell)
+    inside = ((idx >= 0) & (idx < torch.tensor(grid.dims))).all(1)
+    tri, mm, idx = tri[inside], mm[inside], idx[inside].long()
+    lin = (idx[:, 0] * grid.dims[1] + idx[:, 1]) * grid.dims[2] + idx[:, 2]
+    first = grid.start[lin]
+    busy = torch.nonzero(grid.start[lin + 1] > first)[:, 0]  # cells that list any ray
+    tri, mm, lin, first = tri[busy], mm[busy], lin[busy], first[busy]
+    count = torch.searchsorted(grid.key, lin * (grid.reach_mm + 1) + mm, right=True) - first
+    tri = torch.repeat_interleave(tri, count)
+    offset = torch.repeat_interleave(first - (torch.cumsum(count, 0) - count), count)
+    ray = grid.rays[offset + torch.arange(len(tri))]
+    keep = _near_segment(o[ray], d[ray], centre[tri], radius[tri], max_dist)
+    return ray[keep], tri[keep]
 
 
 def _moller_trumbore(
@@ -138,12 +218,19 @@ def _moller_trumbore(
     return t, u, v, ok
 
 
-def _nearest_per_ray(rows: np.ndarray, key: np.ndarray, n: int) -> np.ndarray:
-    """Index into the pairs of each ray's smallest ``key`` ``(n,)``; -1 for rays with no pair."""
+def _nearest_per_ray(
+    rows: np.ndarray, key: np.ndarray, n: int, tie: Callable[[np.ndarray], np.ndarray]
+) -> np.ndarray:
+    """Index into the pairs of each ray's smallest finite ``key`` ``(n,)``; -1 for rays
+    with none. Exact ties go to the smallest ``tie(pairs)`` (asked only when there are)."""
     best = np.full(n, -1)
     if len(rows):
         order = np.lexsort((key, rows))
         first = np.r_[True, rows[order][1:] != rows[order][:-1]]
+        tied = ~first[1:] & first[:-1] & (key[order][1:] == key[order][:-1])
+        tied &= np.isfinite(key[order][:-1])
+        if tied.any():
+            order = np.lexsort((tie(np.isin(rows, rows[order][:-1][tied])), key, rows))
         best[rows[order][first]] = order[first]
     return best
 
@@ -160,31 +247,71 @@ def ray_mesh_hits(
     origins, directions (N, 3) (unit directions); vertices (V, 3); faces (F, 3).
     Returns ``t (N,)`` signed ray parameter (nan = no hit within ``max_dist``), ``face (N,)``
     (-1 = no hit), ``bary (N, 3)`` barycentric weights of the hit on that face; numpy.
+    One pose of :func:`ray_mesh_hits_batch`.
+    """
+    t, face, bary = ray_mesh_hits_batch(
+        origins, directions, np.asarray(vertices, np.float64)[None], faces, max_dist
+    )
+    return t[0], face[0], bary[0]
+
+
+def ray_mesh_hits_batch(
+    origins: np.ndarray,
+    directions: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    max_dist: float = TOCH_MAX_DIST,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`ray_mesh_hits` of the same rays against ``B`` poses of one closed mesh.
+
+    origins, directions (N, 3) (unit directions); vertices (B, V, 3); faces (F, 3).
+    Returns ``t (B, N)``, ``face (B, N)``, ``bary (B, N, 3)`` as :func:`ray_mesh_hits`.
 
     Only crossings with ``|t| <= max_dist`` are looked at: the nearest of them tells
     whether the origin is inside (leaving forwards, or entering when seen from behind),
-    which for a closed mesh agrees with the parity of all crossings. Broad phase by
-    triangle bounding spheres, then exact float64 Möller-Trumbore on the survivors.
+    which for a closed mesh agrees with the parity of all crossings. Broad phase: each
+    triangle's bounding sphere against the rays listed in the cell of a grid fixed to the
+    rays (built once per ray set, :func:`_ray_grid`), all poses in one pass; then exact
+    float64 Möller-Trumbore on the pairs whose sphere reaches the segment.
     """
     o = torch.as_tensor(np.array(origins, np.float64))
     d = torch.as_tensor(np.array(directions, np.float64))
     vt = torch.as_tensor(np.array(vertices, np.float64))
     f = torch.as_tensor(np.array(faces, np.int64))
-    n = len(o)
-    v0, v1, v2 = vt[f[:, 0]], vt[f[:, 1]], vt[f[:, 2]]
+    if vt.ndim != 3 or vt.shape[-1] != 3 or o.shape != d.shape or o.ndim != 2:
+        raise InputError(
+            f"vertices {tuple(vt.shape)} must be (B, V, 3), origins {tuple(o.shape)} and "
+            f"directions {tuple(d.shape)} (N, 3)",
+            where="ray_mesh_hits_batch",
+        )
+    nb, n, nf = vt.shape[0], len(o), len(f)
+    v0, v1, v2 = (vt[:, f[:, k]].reshape(-1, 3) for k in range(3))  # (B*F, 3)
     centre = (v0 + v1 + v2) / 3
     radius = torch.stack([(x - centre).norm(dim=-1) for x in (v0, v1, v2)]).amax(0)
-    rows, cand = _candidates(o, d, centre, radius, max_dist)
-    e1, e2 = (v1 - v0)[cand], (v2 - v0)[cand]
-    t, u, v, ok = _moller_trumbore(o[rows], d[rows], v0[cand], e1, e2)
+    ray, tri = _candidates(o, d, centre, radius, max_dist)
+    e1, e2 = (v1 - v0)[tri], (v2 - v0)[tri]
+    t, u, v, ok = _moller_trumbore(o[ray], d[ray], v0[tri], e1, e2)
     ok &= t.abs() <= max_dist
     # Faces are wound outwards, so d . (e1 x e2) > 0 means the ray leaves the hand there.
-    leaving = (d[rows] * torch.linalg.cross(e1, e2, dim=-1)).sum(-1) > 0
-    rows, cand, t, u, v, leaving = (x[ok].numpy() for x in (rows, cand, t, u, v, leaving))
+    leaving = (d[ray] * torch.linalg.cross(e1, e2, dim=-1)).sum(-1) > 0
+    ray, tri, t, u, v, leaving = (x[ok].numpy() for x in (ray, tri, t, u, v, leaving))
     if len(t) == 0:
-        return np.full(n, np.nan), np.full(n, -1), np.zeros((n, 3))
-    fwd = _nearest_per_ray(rows, np.where(t >= 0, t, np.inf), n)
-    back = _nearest_per_ray(rows, np.where(t < 0, -t, np.inf), n)
+        return np.full((nb, n), np.nan), np.full((nb, n), -1), np.zeros((nb, n, 3))
+    pose, cand = tri // nf, tri % nf
+    rows = pose * n + ray  # one row per (pose, ray)
+
+    def morton_rank(among: np.ndarray) -> np.ndarray:
+        """Position of each pair's triangle in its pose's Z-order (0 outside ``among``)."""
+        rank = np.zeros(len(rows), np.int64)
+        for k in np.unique(pose[among]):
+            pos = np.empty(nf, np.int64)
+            pos[_morton_order(centre[k * nf : (k + 1) * nf]).numpy()] = np.arange(nf)
+            sel = among & (pose == k)
+            rank[sel] = pos[cand[sel]]
+        return rank
+
+    fwd = _nearest_per_ray(rows, np.where(t >= 0, t, np.inf), nb * n, morton_rank)
+    back = _nearest_per_ray(rows, np.where(t < 0, -t, np.inf), nb * n, morton_rank)
     fwd = np.where((fwd >= 0) & (t[fwd] >= 0), fwd, -1)  # a ray with only backward pairs
     back = np.where((back >= 0) & (t[back] < 0), back, -1)
     has_f, has_b = fwd >= 0, back >= 0
@@ -197,7 +324,7 @@ def ray_mesh_hits(
     face_out = np.where(hit, cand[pk], -1)
     uu, vv = (np.where(hit, x[pk], 0.0) for x in (u, v))
     bary = np.where(hit[:, None], np.stack([1 - uu - vv, uu, vv], 1), 0.0)
-    return t_out, face_out, bary
+    return t_out.reshape(nb, n), face_out.reshape(nb, n), bary.reshape(nb, n, 3)
 
 
 @dataclass
@@ -213,9 +340,11 @@ class CorrespondenceField:
     bary: np.ndarray
 
     def as_array(self) -> np.ndarray:
-        """``(N, 5)``: hit, distance, canonical xyz, the layout :class:`TemporalAE` uses."""
+        """``(N, 5)``: hit, distance, canonical xyz, the layout :class:`TemporalAE` uses
+        (``(B, N, 5)`` for the fields of :func:`correspondence_fields`)."""
         return np.concatenate(
-            [self.hit[:, None].astype(np.float64), self.distance[:, None], self.canonical], 1
+            [self.hit[..., None].astype(np.float64), self.distance[..., None], self.canonical],
+            -1,
         )
 
 
@@ -233,25 +362,49 @@ def correspondence_field(
     hand_vertices (V, 3): the posed hand in the same frame; hand_faces (F, 3);
     canonical_hand_vertices (V, 3): the same hand in its canonical pose. Metres.
     """
+    if np.ndim(hand_vertices) != 2:
+        raise InputError(
+            f"hand vertices {np.shape(hand_vertices)} must be (V, 3)", where="correspondence_field"
+        )
+    field = correspondence_fields(
+        obj_points, obj_normals, np.asarray(hand_vertices)[None], hand_faces,
+        canonical_hand_vertices, max_dist,
+    )
+    return CorrespondenceField(**{k: v[0] for k, v in vars(field).items()})
+
+
+def correspondence_fields(
+    obj_points: np.ndarray,
+    obj_normals: np.ndarray,
+    hand_vertices: np.ndarray,
+    hand_faces: np.ndarray,
+    canonical_hand_vertices: np.ndarray,
+    max_dist: float = TOCH_MAX_DIST,
+) -> CorrespondenceField:
+    """:func:`correspondence_field` of ``B`` frames of one hand against the same object
+    samples (one broad phase for all of them): hand_vertices (B, V, 3); the other inputs
+    as there. Returns a :class:`CorrespondenceField` whose arrays have a leading ``B``
+    (``as_array`` -> ``(B, N, 5)``)."""
     pts = np.asarray(obj_points, np.float64)
     nrm = np.asarray(obj_normals, np.float64)
     canon = np.asarray(canonical_hand_vertices, np.float64)
     faces = np.asarray(hand_faces, np.int64)
+    posed = np.asarray(hand_vertices, np.float64)
     if pts.shape != nrm.shape or pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(
             f"points {pts.shape} and normals {nrm.shape} must both be (N, 3)",
             where="correspondence_field",
         )
-    if canon.shape != np.shape(hand_vertices):
+    if posed.ndim != 3 or canon.shape != posed.shape[1:]:
         raise InputError(
-            f"canonical {canon.shape} vs posed {np.shape(hand_vertices)}",
+            f"canonical {canon.shape} vs posed {posed.shape} (B frames of it)",
             where="correspondence_field",
         )
     nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
-    t, face, bary = ray_mesh_hits(pts, nrm, hand_vertices, faces, max_dist)
+    t, face, bary = ray_mesh_hits_batch(pts, nrm, posed, faces, max_dist)
     hit = face >= 0
-    tri = canon[faces[np.where(hit, face, 0)]]  # (N, 3, 3)
-    canonical = np.where(hit[:, None], np.einsum("nk,nkc->nc", bary, tri), 0.0)
+    tri = canon[faces[np.where(hit, face, 0)]]  # (B, N, 3, 3)
+    canonical = np.where(hit[..., None], np.einsum("bnk,bnkc->bnc", bary, tri), 0.0)
     return CorrespondenceField(hit, np.where(hit, t, 0.0), canonical, face, bary)
 
 

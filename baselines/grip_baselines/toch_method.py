@@ -49,7 +49,7 @@ from .toch import (
     FitConfig,
     TemporalAE,
     TemporalAEConfig,
-    correspondence_field,
+    correspondence_fields,
     field_losses,
     fit_hand_to_field,
     hit_pos_weight,
@@ -116,7 +116,7 @@ def hand_fields(
     world = U.pose_hand(hand, sub["global_orient"], sub["hand_pose"], sub["transl"])[0]
     local = U.to_object(seq, world, frames)
     faces, canon = np.asarray(hand.faces), hand.template_vertices.double().numpy()
-    out = np.stack([correspondence_field(pts, nrm, v, faces, canon).as_array() for v in local])
+    out = correspondence_fields(pts, nrm, local, faces, canon).as_array()  # one broad phase
     if side == "left":
         out[..., 2:] = mirror_points(out[..., 2:])
     return out
