@@ -118,6 +118,14 @@ def contact_consistency(
     Frames with no ground-truth contact vertex are NaN (not 0: nothing was measured there).
     """
     err = norm3(np.asarray(pred_vertices) - np.asarray(gt_vertices))
+    return contact_consistency_from_error(err, gt_signed_dist, threshold)
+
+
+def contact_consistency_from_error(
+    err: np.ndarray, gt_signed_dist: np.ndarray, threshold: float = C.CC_THRESHOLD
+) -> np.ndarray:
+    """:func:`contact_consistency` from the per-vertex errors ``|p - g|`` (T, V) m (the
+    evaluation computes them once for MPVPE and CC) -> (T,) m."""
     sel = in_contact(gt_signed_dist, threshold)
     n = sel.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -154,10 +162,15 @@ def contact_drift(
         return out
     touch = in_contact(gt_signed_dist, threshold)
     sel = touch[1:] & touch[:-1] & (mask[1:] & mask[:-1])[:, None]  # (T-1, V)
-    dev = norm3((p[1:] - p[:-1]) - (g[1:] - g[:-1]))
+    # Deviations of the selected (frame, vertex) entries only (a few % of them); the rows are
+    # then summed over all V with zeros elsewhere, as np.where(sel, dev, 0).sum(-1) does, so
+    # the summation order and the values stay those of the dense form bit for bit.
+    t, v = np.nonzero(sel)
+    dev = np.zeros(sel.shape)
+    dev[t, v] = norm3((p[t + 1, v] - p[t, v]) - (g[t + 1, v] - g[t, v]))
     n = sel.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        per = np.where(sel, dev, 0.0).sum(axis=-1) / n
+        per = dev.sum(axis=-1) / n
     out[1:] = np.where(n > 0, per, np.nan)
     return out
 

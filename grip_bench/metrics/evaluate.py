@@ -31,7 +31,6 @@ shared by the two hands.
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
@@ -42,9 +41,10 @@ import numpy as np
 from ..core import constants as C
 from ..core.errors import InputError
 from ..core.frames import SIDES
+from ..core.vec import norm3
 from ..results.schema import ResultRow
 from .contact import (
-    contact_consistency,
+    contact_consistency_from_error,
     contact_deviation,
     contact_drift,
     finger_ids,
@@ -55,9 +55,9 @@ from .contact import (
     strict_contact,
 )
 from .intersection import FailureCounter, intersection_volume_batch
-from .jitter import acceleration_error, acceleration_magnitudes
+from .jitter import acceleration, acceleration_error_of
 from .penetration import penetration_depth_from_sdf
-from .pose import mpjpe, mpvpe
+from .pose import mpjpe
 from .registry import METRICS, metric
 
 if TYPE_CHECKING:
@@ -182,23 +182,45 @@ def hand_track(
     return HandTrack(verts, joints, local, signed_distances(field, local))
 
 
-# Posed ground-truth hands of this process, least recently used first (``gt_track``). A run
-# scores ~30 prediction sets against one ground truth, and posing it and its distances were
-# ~20 % of each set's evaluation. A memory budget, not a protocol constant (it changes no
-# value), so it lives here and not in core/constants.py, whose every edit renews every unit.
+# Posed ground-truth hands of this process (``gt_track``). A run scores ~30 prediction sets
+# against one ground truth, and posing it and its distances were ~20 % of each set's
+# evaluation. A memory budget, not a protocol constant (it changes no value), so it lives
+# here and not in core/constants.py, whose every edit renews every unit. A track that does
+# not fit is not kept (nothing is evicted for it): every set sweeps all of its sequences in
+# the same order, and least-recently-used eviction then dropped each track just before its
+# next use (measured on the smoke data: no hit at all), while keeping the first ones gives a
+# hit on each of them. The object-frame vertices are not kept (one rigid transform, ~1/6 of
+# a track's cost, recomputed), so a 280-frame procedural hand keeps ~23 MB, not ~40.
 GT_CACHE_BYTES = 1 << 30
-_GT_TRACKS: OrderedDict[tuple, HandTrack] = OrderedDict()
+
+
+@dataclass(frozen=True)
+class _KeptTrack:
+    """What ``gt_track`` keeps of a :class:`HandTrack` (read-only arrays)."""
+
+    verts: np.ndarray
+    joints: np.ndarray
+    sd: np.ndarray
+
+    @property
+    def nbytes(self) -> int:
+        return self.verts.nbytes + self.joints.nbytes + self.sd.nbytes
+
+
+_GT_TRACKS: dict[tuple, _KeptTrack] = {}
 
 
 def gt_track(seq: Sequence, side: str, poser: ProceduralPoser | MANOPoser,
              library: ObjectLibrary, field: DistanceField, model_path: str | None
              ) -> HandTrack:
     """:func:`hand_track` of a ground-truth sequence as read from its file, kept for the next
-    prediction set scored against it in this process (up to ``GT_CACHE_BYTES``; arrays
-    read-only, so no metric can change what the next one reads). The key is the file's
-    path and content hash, the side, the hand models and the library's folder and mesh
-    options. Only for a sequence read from its file unchanged (``evaluate_sequence(...,
-    gt_cache=True)``: the evaluation workers and metric validity read it just before)."""
+    prediction set scored against it in this process (up to ``GT_CACHE_BYTES``; a track that
+    does not fit is returned, not kept; arrays read-only, so no metric can change what the
+    next one reads; ``local`` is recomputed from the kept world vertices, the same values).
+    The key is the file's path and content hash, the side, the hand models and the
+    library's folder and mesh options. Only for a sequence read from its file unchanged
+    (``evaluate_sequence(..., gt_cache=True)``: the evaluation workers and metric validity
+    read it just before)."""
     import hashlib
     import os
 
@@ -208,21 +230,17 @@ def gt_track(seq: Sequence, side: str, poser: ProceduralPoser | MANOPoser,
         digest = hashlib.blake2b(f.read(), digest_size=16).hexdigest()
     key = (os.path.realpath(seq.source), digest, side, str(model_path),
            os.path.realpath(library.data_dir), repr(library.mesh_options))
-    if key in _GT_TRACKS:
-        _GT_TRACKS.move_to_end(key)
-        return _GT_TRACKS[key]
+    kept = _GT_TRACKS.get(key)
+    if kept is not None:
+        return HandTrack(kept.verts, kept.joints, library.world_to_object(seq, kept.verts),
+                         kept.sd)
     track = hand_track(seq, side, poser, library, field)
     for a in (track.verts, track.joints, track.local, track.sd):
         a.flags.writeable = False
-    _GT_TRACKS[key] = track
-    total = sum(_track_bytes(t) for t in _GT_TRACKS.values())
-    while total > GT_CACHE_BYTES and len(_GT_TRACKS) > 1:
-        total -= _track_bytes(_GT_TRACKS.popitem(last=False)[1])
+    kept = _KeptTrack(track.verts, track.joints, track.sd)
+    if sum(t.nbytes for t in _GT_TRACKS.values()) + kept.nbytes <= GT_CACHE_BYTES:
+        _GT_TRACKS[key] = kept
     return track
-
-
-def _track_bytes(t: HandTrack) -> int:
-    return t.verts.nbytes + t.joints.nbytes + t.local.nbytes + t.sd.nbytes
 
 
 class SequencePair:
@@ -242,6 +260,7 @@ class SequencePair:
         self._tracks: dict[tuple[str, str], HandTrack] = {}
         self._sims: dict[tuple, object] = {}
         self._grasp: dict[str, np.ndarray] = {}
+        self._shared: dict[str, np.ndarray] = {}  # per-hand arrays two metrics read
 
     def track(self, who: str, side: str) -> HandTrack:
         """``who`` is "pred" or "gt"."""
@@ -264,6 +283,26 @@ class SequencePair:
     def finger(self, side: str) -> np.ndarray:
         """Finger code of each vertex (V,) of ``side`` (``contact.finger_ids``)."""
         return finger_ids(_bone_ids(self.poser, side, self.track("gt", side).sd.shape[-1]))
+
+    def vertex_error(self, side: str) -> np.ndarray:
+        """Per-vertex error ``|pred - gt|`` (T, V) m of ``side``'s world vertices, computed
+        once for MPVPE and CC."""
+        key = "err:" + side
+        if key not in self._shared:
+            p = np.asarray(self.track("pred", side).verts, dtype=np.float64)
+            g = np.asarray(self.track("gt", side).verts, dtype=np.float64)
+            if p.shape != g.shape:
+                raise InputError(f"hand vertices {p.shape} against {g.shape}", "vertices")
+            self._shared[key] = norm3(p - g)
+        return self._shared[key]
+
+    def accel(self, side: str) -> np.ndarray:
+        """Second differences (T-2, V, 3) m/s^2 of the predicted ``side``'s world vertices
+        (``jitter.acceleration``), computed once for ``jitter`` and ``accel_err``."""
+        key = "accel:" + side
+        if key not in self._shared:
+            self._shared[key] = acceleration(self.track("pred", side).verts, self.gt.fps)
+        return self._shared[key]
 
     @cached_property
     def lift(self) -> np.ndarray:
@@ -306,14 +345,15 @@ def m_mpjpe(pair: SequencePair, side: str) -> Measured:
 @metric("mpvpe", "MPVPE", "mm", 1e3, False, "all", 1,
         "mean error of all hand mesh vertices, no alignment")
 def m_mpvpe(pair: SequencePair, side: str) -> Measured:
-    return _all_frames(pair, mpvpe(pair.track("pred", side).verts, pair.track("gt", side).verts))
+    return _all_frames(pair, pair.vertex_error(side).mean(axis=-1))  # = pose.mpvpe(pred, gt)
 
 
 @metric("cc", "Contact consistency", "mm", 1e3, False, "held", 2,
         "vertex error on hand vertices within 2 mm of the object in ground truth")
 def m_cc(pair: SequencePair, side: str) -> Measured:
-    p, g = pair.track("pred", side), pair.track("gt", side)
-    return _on_held(pair, side, contact_consistency(p.verts, g.verts, g.sd, C.CC_THRESHOLD))
+    # = contact.contact_consistency(pred verts, gt verts, gt sd), the errors shared with MPVPE
+    err, g = pair.vertex_error(side), pair.track("gt", side)
+    return _on_held(pair, side, contact_consistency_from_error(err, g.sd, C.CC_THRESHOLD))
 
 
 @metric("contact_drift", "Contact drift", "mm", 1e3, False, "held", 2,
@@ -489,9 +529,9 @@ def m_sim_disp_hold(pair: SequencePair, side: str) -> Measured:
         "mean acceleration magnitude of hand vertices (second differences at 30 fps)")
 def m_jitter(pair: SequencePair, side: str) -> Measured:
     # one (T-2, V) magnitude array: its per-frame means and its overall mean (= jitter())
-    mags = acceleration_magnitudes(pair.track("pred", side).verts, pair.gt.fps)
-    if not len(mags):
+    if pair.n_frames < 3:
         return Measured(np.zeros(0, int), np.zeros(0), value=float("nan"))
+    mags = norm3(pair.accel(side))  # = acceleration_magnitudes(verts, fps), shared with accel_err
     return Measured(np.arange(1, 1 + len(mags)), mags.mean(axis=-1), value=float(mags.mean()))
 
 
@@ -499,8 +539,11 @@ def m_jitter(pair: SequencePair, side: str) -> Measured:
         "mean over frames and vertices of |a_pred - a_gt| (world frame, second differences at "
         "the sequence's fps; ARCTIC's acceleration error)")
 def m_accel_err(pair: SequencePair, side: str) -> Measured:
-    per = acceleration_error(pair.track("pred", side).verts, pair.track("gt", side).verts,
-                             pair.gt.fps)
+    if pair.n_frames < 3:
+        return Measured(np.zeros(0, int), np.zeros(0))
+    # = acceleration_error(pred verts, gt verts, fps), the prediction's half shared with jitter
+    per = acceleration_error_of(pair.accel(side),
+                                acceleration(pair.track("gt", side).verts, pair.gt.fps))
     return Measured(np.arange(1, 1 + len(per)), per)
 
 

@@ -52,5 +52,10 @@ def acceleration_error(pred_vertices: np.ndarray, gt_vertices: np.ndarray,
     """
     if np.shape(pred_vertices)[0] < 3:
         return np.zeros(0)
-    diff = acceleration(pred_vertices, fps) - acceleration(gt_vertices, fps)
-    return norm3(diff).mean(axis=-1)
+    return acceleration_error_of(acceleration(pred_vertices, fps), acceleration(gt_vertices, fps))
+
+
+def acceleration_error_of(pred_accel: np.ndarray, gt_accel: np.ndarray) -> np.ndarray:
+    """:func:`acceleration_error` from the two accelerations (T-2, V, 3) m/s^2 (the
+    evaluation computes the prediction's once for jitter and this) -> (T-2,) m/s^2."""
+    return norm3(pred_accel - gt_accel).mean(axis=-1)

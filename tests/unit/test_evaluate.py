@@ -288,3 +288,71 @@ def test_cached_ground_truth_hands_give_the_same_rows_and_are_read_only(data, tm
     E.evaluate_sequence(pred, other, lib, options=FAST, gt_cache=True)
     assert len(E._GT_TRACKS) == 4
     E._GT_TRACKS.clear()
+
+
+def test_ground_truth_cache_keeps_the_first_tracks_when_a_sweep_exceeds_its_budget(
+        data, tmp_path, monkeypatch):
+    """A budget below one sweep's tracks: the first tracks are kept and hit on the next sweep
+    (least-recently-used eviction would drop each just before its next use), later ones are
+    posed anew; the rows equal the uncached ones either way."""
+    from grip_bench.data.grab_io import write_grab
+
+    lib, seqs = data
+    files = []
+    for i, gt in enumerate(seqs.values()):  # own files: the keys hold path and content
+        files.append(write_grab(gt, tmp_path / "grab" / "s1" / f"seq{i}.npz"))
+    gts = [read_grab(f) for f in files]
+    E._GT_TRACKS.clear()
+    plain = [E.evaluate_sequence(g, g.copy(), lib, options=FAST)[0] for g in gts]
+    E.evaluate_sequence(gts[0], gts[0].copy(), lib, options=FAST, gt_cache=True)
+    one_seq = sum(t.nbytes for t in E._GT_TRACKS.values())  # both hands of gts[0]
+    E._GT_TRACKS.clear()
+    monkeypatch.setattr(E, "GT_CACHE_BYTES", one_seq)
+
+    def same(rows):  # NaN-aware: repr of every field
+        return [tuple(map(repr, vars(r).values())) for r in rows]
+
+    sweeps = []
+    for _ in range(2):
+        sweeps.append([E.evaluate_sequence(read_grab(f), read_grab(f), lib, options=FAST,
+                                           gt_cache=True)[0] for f in files])
+        kept = dict(E._GT_TRACKS)
+        assert len(kept) == 2 and {k[0] for k in kept} == {str(files[0].resolve())}
+        if len(sweeps) == 1:
+            first = kept
+    assert all(a is b for a, b in zip(first.values(), kept.values(), strict=True))
+    for rows in sweeps:
+        assert [same(r) for r in rows] == [same(r) for r in plain]
+    E._GT_TRACKS.clear()
+
+
+def test_jitter_and_acceleration_error_equal_the_pure_functions_bit_for_bit(data):
+    """The evaluation computes the prediction's acceleration once for both metrics: the
+    values are exactly ``jitter`` / ``acceleration_error`` of the posed vertices; a sequence
+    of 2 frames has neither (NaN, 0 frames)."""
+    import importlib
+
+    J = importlib.import_module("grip_bench.metrics.jitter")  # the package exports jitter()
+
+    lib, seqs = data
+    gt = seqs["cylindermedium"]
+    pred = gt.copy()
+    rng = np.random.default_rng(0)
+    pred.lhand["transl"] = pred.lhand["transl"] + rng.normal(0, 0.002, (gt.n_frames, 3))
+    pair = E.SequencePair(pred, gt, lib, FAST, I.FailureCounter())
+    for side in ("right", "left"):
+        p, g = pair.track("pred", side).verts, pair.track("gt", side).verts
+        jit, acc = E.m_jitter(pair, side), E.m_accel_err(pair, side)
+        assert jit.summary()[0] == J.jitter(p, gt.fps)
+        np.testing.assert_array_equal(jit.values,
+                                      J.acceleration_magnitudes(p, gt.fps).mean(axis=-1))
+        np.testing.assert_array_equal(acc.values, J.acceleration_error(p, g, gt.fps))
+        naive = np.array([np.mean(np.linalg.norm(
+            (p[t + 1] - 2 * p[t] + p[t - 1]) * gt.fps**2
+            - (g[t + 1] - 2 * g[t] + g[t - 1]) * gt.fps**2, axis=-1))
+            for t in range(1, gt.n_frames - 1)])
+        np.testing.assert_allclose(acc.values, naive, rtol=1e-12, atol=1e-12)
+    assert E.m_accel_err(pair, "left").summary()[0] > 0.0  # the noisy hand
+    short = gt.frames(0, 2)
+    rows, _ = E.evaluate_sequence(short, short.copy(), lib, metrics=["jitter", "accel_err"])
+    assert all(math.isnan(r.value) and r.n_frames == 0 for r in rows) and len(rows) == 4

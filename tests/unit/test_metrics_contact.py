@@ -186,3 +186,51 @@ def test_contact_frequency_matches_loop():
     ]
     np.testing.assert_allclose(contact_frequency(d, mask), ref)
     assert np.isnan(contact_frequency(d, np.zeros(20, bool))).all()
+
+
+def _dense_drift(p, g, sd, mask, threshold):
+    """The dense form contact_drift had: every (frame, vertex) deviation, masked by np.where."""
+    from grip_bench.core.vec import norm3
+
+    touch = sd <= threshold
+    sel = touch[1:] & touch[:-1] & (mask[1:] & mask[:-1])[:, None]
+    dev = norm3((p[1:] - p[:-1]) - (g[1:] - g[:-1]))
+    n = sel.sum(axis=-1)
+    out = np.full(p.shape[0], np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out[1:] = np.where(n > 0, np.where(sel, dev, 0.0).sum(axis=-1) / n, np.nan)
+    return out
+
+
+def test_drift_on_selected_entries_equals_the_dense_form_bit_for_bit():
+    """contact_drift computes deviations only where the GT touches in both frames; the sums
+    run over all vertices with zeros elsewhere, so the values are the dense ones exactly
+    (NaN where no vertex is selected, large random V so pairwise summation matters)."""
+    from grip_bench.metrics.contact import contact_drift
+
+    rng = np.random.default_rng(3)
+    T, V = 30, 2500
+    p, g = rng.normal(0, 0.05, (T, V, 3)), rng.normal(0, 0.05, (T, V, 3))
+    sd = rng.uniform(-0.002, 0.02, (T, V))  # ~20 % of the vertices within 2 mm
+    mask = np.ones(T, bool)
+    mask[[4, 10, 11, 12, 20]] = False  # frames 0, 4-5, 10-13, 20-21 NaN
+    got = contact_drift(p, g, sd, mask, C.CC_THRESHOLD)
+    ref = _dense_drift(p, g, sd, mask, C.CC_THRESHOLD)
+    assert np.isnan(got).sum() == 9 and np.isfinite(got).sum() == T - 9
+    np.testing.assert_array_equal(got, ref)  # NaN where NaN
+    assert got.tobytes() == ref.tobytes()
+    none = contact_drift(p, g, np.full((T, V), 1.0), mask, C.CC_THRESHOLD)
+    assert np.isnan(none).all()
+
+
+def test_cc_from_shared_errors_equals_cc_bit_for_bit():
+    from grip_bench.core.vec import norm3
+    from grip_bench.metrics.contact import contact_consistency_from_error
+
+    rng = np.random.default_rng(4)
+    p, g = rng.normal(0, 0.05, (12, 778, 3)), rng.normal(0, 0.05, (12, 778, 3))
+    sd = rng.uniform(-0.002, 0.01, (12, 778))
+    sd[3] = 1.0  # a frame without contact: NaN
+    a = contact_consistency(p, g, sd, C.CC_THRESHOLD)
+    b = contact_consistency_from_error(norm3(p - g), sd, C.CC_THRESHOLD)
+    assert np.isnan(a[3]) and a.tobytes() == b.tobytes()
