@@ -97,11 +97,19 @@ def test_each_grasp_type_holds_and_shapes_the_fingers_its_own_way(thin):
                 <= CONTACT_THRESHOLD}
         assert "thumb" in near and near & {"index", "middle", "ring", "pinky"}
         found[kind] = local[0]
-    ring = list(G.CHAINS["ring"])
+    ring, pinky = list(G.CHAINS["ring"]), list(G.CHAINS["pinky"])
     pre = G.preshape_local("precision")
-    # a pinch leaves its unused fingers in the pre-shape (tucked); a lateral pinch curls them
-    np.testing.assert_allclose(found["precision"][ring], pre[ring], atol=1e-12)
-    np.testing.assert_allclose(found["tripod"][ring], G.preshape_local("tripod")[ring], atol=1e-12)
+    # a pinch leaves its little finger in the pre-shape (tucked); its ring finger flexes from
+    # half tucked towards the tucked pose, stopping at the object (test_synth_ring.py): the
+    # precision pinch's reaches the tuck here, the tripod's rests on the cylinder; a lateral
+    # pinch curls them
+    tucked = np.radians([G._TUCKED[G._kind_of(j)] for j in ring])
+    for kind in G.PINCH_KINDS:
+        np.testing.assert_allclose(found[kind][pinky], pre[pinky], atol=1e-12)
+        flex = found[kind][ring, 0]
+        assert (flex >= G.preshape_local(kind)[ring, 0] - 1e-9).all()
+        assert (flex <= tucked[:, 0] + 1e-9).all()
+    np.testing.assert_allclose(found["precision"][ring], tucked, atol=1e-9)
     mid = list(G.CHAINS["middle"])
     assert np.abs(found["precision"][mid] - found["tripod"][mid]).max() > np.radians(10)
     # lateral: the thumb comes down onto the side of the index (adduction), not opposition

@@ -3,8 +3,9 @@
 Per candidate hand orientation (batched over candidates):
 1. *Pre-shape* the hand for the grasp type (``GRASP_TYPES``): power (all fingers
    around the object, the thumb opposing), handle (a power grasp around a handle),
-   precision (a pinch between the thumb and index pads, the other fingers tucked),
-   tripod (thumb, index and middle pads, ring and little finger tucked), lateral (a key
+   precision (a pinch between the thumb and index pads, the middle and ring fingers half
+   tucked, the little finger tucked), tripod (thumb, index and middle pads, the ring finger
+   half tucked, the little finger tucked), lateral (a key
    pinch: the fingers curled, the object pressed by the thumb pad against the side of the
    index), hook (the four fingers curled round a handle, palm and thumb off it), bimanual
    (palm and fingers of each hand on a large object).
@@ -14,10 +15,12 @@ Per candidate hand orientation (batched over candidates):
    (lateral: its thumb side, the thumb left out) until its nearest vertex is ``GAP`` from
    the surface (distance fields are 1-Lipschitz, so stepping by the current clearance
    never jumps inside).
-3. *Close*: for each finger the grasp type closes (a pinch leaves the tucked fingers
-   alone), flex its joints proximal to distal; each joint flexes
-   until the part of the finger it moves touches the surface (``GAP``) or reaches its
-   limit (GraspIt's auto-grasp scheme), found by a coarse sweep and a bisection.
+3. *Close*: for each finger the grasp type closes (a pinch leaves its other fingers in
+   the pre-shape, except the ring finger, which flexes on to its tucked pose: it rests on
+   the object where the object reaches it, ``_RESTING_FINGERS``), flex its joints proximal
+   to distal; each joint flexes until the part of the finger it moves touches the surface
+   (``GAP``) or reaches its limit (GraspIt's auto-grasp scheme), found by a coarse sweep and
+   a bisection.
 4. *Score*: thumb plus at least one finger in contact (palm and fingers for bimanual
    holds; for a hook two fingers or more, palm and thumb not touching), no penetration,
    clear of the table (closed, pre-shaped and in between), and a wrist orientation close
@@ -115,6 +118,13 @@ HOOK_MIN_FINGERS = 2  # fingers round the bar
 # (lateral: the index stays where placing left it, its side just off the object)
 _IDLE_FINGERS = {"precision": ("middle", "ring", "pinky"), "tripod": ("ring", "pinky"),
                  "lateral": ("index",), "hook": ("thumb",)}
+# Fingers a pinch neither uses nor leaves rigid: pre-shaped half tucked, they flex towards the
+# tucked pose and stop where they meet the object, so they rest on it wherever it reaches them
+# and end tucked otherwise. The ring finger shares the middle finger's deep flexor (the
+# "quadriga"): it cannot stay far from the middle, which a pinch flexes. (Measured on the
+# default profile: ring contact 68 % of grasp frames with a rigid tuck, 25 % in precision
+# pinches, GRAB 79 %; the little finger is already at GRAB's 39 %, so it stays rigidly tucked.)
+_RESTING_FINGERS = {"precision": ("ring",), "tripod": ("ring",)}
 # Hand-frame quarter turn about the finger axis mapping the thumb side (+z) onto the palm
 # normal (-y): a lateral grasp faces the object with the side of its index.
 _LATERAL_TURN = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -163,6 +173,9 @@ def preshape_local(kind: str, table: dict | None = None, flat: bool = False) -> 
             local[j] = _TUCKED[_kind_of(j)]
         if kind == "precision":
             for j in CHAINS["middle"]:
+                local[j] = _HALF_TUCKED[_kind_of(j)]
+        for f in _RESTING_FINGERS.get(kind, ()):  # closing flexes them on to the tucked pose
+            for j in CHAINS[f]:
                 local[j] = _HALF_TUCKED[_kind_of(j)]
     return np.radians(local)
 
@@ -399,6 +412,9 @@ class GraspSynthesizer:
             n = R[:, :, 2] if kind == "lateral" else R @ full.palm_normal
             t = self._place(sub, R, local0, target, n, kind)
         ok = np.isfinite(t).all(axis=1)
+        if ok.any() and kind in _RESTING_FINGERS and not flat:
+            local0[ok] = self._rest_or_tuck(sub, R[ok], t[ok], local0[ok], kind, above_table,
+                                            avoid, up)
         if ok.any() and (above_table or avoid is not None):
             # The pre-shape comes in and the hand opens to it again when letting go: it
             # must clear the table and the other hand too (cheap test before closing).
@@ -676,6 +692,33 @@ class GraspSynthesizer:
         t[missed] = np.nan
         return t
 
+    def _rest_or_tuck(
+        self,
+        sub: ProceduralHand,
+        R: np.ndarray,
+        t: np.ndarray,
+        local0: np.ndarray,
+        kind: str,
+        above_table: bool,
+        avoid: np.ndarray | None,
+        up: float,
+    ) -> np.ndarray:
+        """Pinch pre-shapes (C, 15, 3) whose resting fingers (``_RESTING_FINGERS``) start half
+        tucked only where that finger is clear of the object, the table and ``avoid`` (as
+        :meth:`search`); elsewhere it is tucked and stays so, like the pinch's other unused
+        fingers. (A pinch is placed, not traced: half tucked, the finger would otherwise come
+        in through a flat object or the table and lose candidates a tucked finger keeps.)"""
+        v, _ = _pose(sub, R, t, local0)
+        for f in _RESTING_FINGERS[kind]:
+            vf = v[:, np.isin(sub.bone_ids_subset, np.array(CHAINS[f]) + 1)]
+            sd = self.bound.signed_distance(self.df, vf.reshape(-1, 3), 0.0).reshape(len(R), -1)
+            clear = (sd.min(1) >= 0.0) & _clear_of(vf, avoid)
+            if above_table:
+                clear &= (up * vf[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
+            for j in CHAINS[f]:
+                local0[~clear, j] = np.radians(_TUCKED[_kind_of(j)])
+        return local0
+
     def _close(
         self, side: str, R: np.ndarray, t: np.ndarray, local0: np.ndarray, kind: str
     ) -> np.ndarray:
@@ -686,12 +729,21 @@ class GraspSynthesizer:
         lower, upper = levels[0][0].joint_limits.lower, levels[0][0].joint_limits.upper
         dirs = _close_dirs(kind)
         local = local0.copy()
+        # a resting finger flexes only from its half-tucked pre-shape (C,) per finger: a flat
+        # pinch keeps it out straight (tucked, it would reach the table under a flat object)
+        half = np.radians(_HALF_TUCKED["mcp"][0])
+        resting = {f: np.abs(local0[:, CHAINS[f][0], 0] - half) < 1e-6
+                   for f in _RESTING_FINGERS.get(kind, ())}
         for level in range(3):
             sub, moving = levels[level]
             joints = [CHAINS[f][level] for f in FINGERS]
             room = np.stack([_room(local[:, j], dirs[j], lower[j], upper[j]) for j in joints], 1)
-            # a pinch leaves the fingers it does not use in their pre-shape, out of the way
-            room[:, [FINGERS.index(f) for f in _IDLE_FINGERS.get(kind, ())]] = 0.0
+            # a pinch leaves the fingers it does not use in their pre-shape, out of the way...
+            room[:, [FINGERS.index(f) for f in _IDLE_FINGERS.get(kind, ()) if f not in resting]] = 0
+            for f, rests in resting.items():  # ...but its resting fingers flex on to the tuck
+                k, j = FINGERS.index(f), CHAINS[f][level]
+                cap = np.radians(_TUCKED[_kind_of(j)][0]) - local[:, j, 0]
+                room[:, k] = np.where(rests, np.clip(np.minimum(room[:, k], cap), 0.0, None), 0.0)
             lo, hi = self._sweep(sub, R, t, local, joints, dirs, room, moving)
             for _ in range(BISECT_STEPS):
                 mid = 0.5 * (lo + hi)
