@@ -129,6 +129,38 @@ def to_world(local: np.ndarray, rot: np.ndarray, transl: np.ndarray) -> np.ndarr
     return out
 
 
+def hand_points_in_object(
+    local: np.ndarray, rot: np.ndarray, transl: np.ndarray, obj_rot: np.ndarray,
+    obj_transl: np.ndarray,
+) -> np.ndarray:
+    """Hand-frame points ``(N, 3)`` -> the object's frame ``(T, N, 3)``, through the world.
+
+    Bit for bit ``core.frames.world_to_object(to_world(local, rot, transl), obj_rot,
+    obj_transl)`` (wrists ``rot (T, 3, 3)``, ``transl (T, 3)``; GRAB's row-vector object
+    rotations ``obj_rot (T, 3, 3)`` and ``obj_transl (T, 3)``): the same products and sums in
+    the same order, but each world coordinate stays a contiguous ``(T, N)`` plane from
+    :func:`to_world`'s sum to ``rotate_planes``, instead of being written into and read
+    back out of an interleaved ``(T, N, 3)`` world array.
+    """
+    from .core.frames import rotate_planes
+
+    local, rot, transl = np.asarray(local), np.asarray(rot), np.asarray(transl)
+    t = np.asarray(obj_transl, float)
+    dtype = np.result_type(rot, local, transl)
+    l0, l1, l2 = local[:, 0], local[:, 1], local[:, 2]
+    planes = []
+    for i in range(3):
+        o = rot[:, i, 0, None] * l0
+        o += rot[:, i, 2, None] * l2
+        o += rot[:, i, 1, None] * l1
+        # to_world's coordinate i, then world_to_object's (points - t) plane; in place only
+        # where the dtype is the one the two-step form's result has
+        w = np.add(o, transl[:, i, None], out=o if o.dtype == dtype else None).astype(
+            dtype, copy=False)
+        planes.append(np.subtract(w, t[:, i, None], out=w if w.dtype == t.dtype else None))
+    return rotate_planes(planes, np.asarray(obj_rot))
+
+
 def wrist_frames(seq: Sequence, side: str) -> tuple[np.ndarray, np.ndarray]:
     """A sequence's wrist rotations ``(T, 3, 3)`` and positions ``(T, 3)`` (its hand params)."""
     from scipy.spatial.transform import Rotation
@@ -153,6 +185,17 @@ def signed_object_distance(
     """
     local = library.world_to_object(seq, world)
     return library.field(seq.obj_name).signed_distance(local, far="coarse", exact_cells=exact_cells)
+
+
+def hand_object_distance(
+    library: ObjectLibrary, seq: Sequence, local: np.ndarray, rot: np.ndarray,
+    transl: np.ndarray, exact_cells: bool = True,
+) -> np.ndarray:
+    """``signed_object_distance(library, seq, to_world(local, rot, transl), exact_cells)``
+    ``(T, N)`` (m) bit for bit, of hand-frame points ``local (N, 3)`` at wrists ``rot (T, 3,
+    3)``, ``transl (T, 3)``, without the world array (:func:`hand_points_in_object`)."""
+    obj = hand_points_in_object(local, rot, transl, seq.object_rotations(), seq.object["transl"])
+    return library.field(seq.obj_name).signed_distance(obj, far="coarse", exact_cells=exact_cells)
 
 
 def object_distance(
@@ -186,12 +229,10 @@ def ambient_feature(
     """
     scale = seq.hand_scale or 1.0
     if kind == "distance":
-        d = object_distance(library, seq, to_world(ambient_points(side, scale), rot, transl), False)
-        return attention(d, C.AMBIENT_DECAY).astype(np.float32)
+        sd = hand_object_distance(library, seq, ambient_points(side, scale), rot, transl, False)
+        return attention(np.maximum(sd, 0.0), C.AMBIENT_DECAY).astype(np.float32)
     if kind == "voxel":
-        sd = signed_object_distance(
-            library, seq, to_world(voxel_points(side, scale), rot, transl), False
-        )
+        sd = hand_object_distance(library, seq, voxel_points(side, scale), rot, transl, False)
         return (sd < 0).astype(np.float32)
     raise InputError(f"unknown ambient kind {kind!r} (known: distance, voxel)", "ambient")
 
@@ -287,7 +328,9 @@ def stage_one(
     for side in NET_SIDES:
         rot, transl = wrists[side] if wrists else wrist_frames(seq, side)
         amb.append(_ambient(library, seq, rot, transl, side, ambient))
-        h, d = proximity_feature(library, seq, to_world(mean_hand_points(side, scale), rot, transl))
+        d = np.maximum(hand_object_distance(library, seq, mean_hand_points(side, scale), rot,
+                                            transl), 0.0)  # proximity_feature's distances
+        h = attention(d, C.PROXIMITY_DECAY).astype(np.float32)
         prox.append(h)
         mean.append(d.mean(axis=1))
     return StageOne(np.stack(amb, 1), np.stack(prox, 1), np.stack(mean, 1))

@@ -221,7 +221,8 @@ def moved_wrists(seq: Sequence, old_pose: np.ndarray, new_pose: np.ndarray, wris
 def arms_to_wrists(seq: Sequence, wrists: dict) -> np.ndarray:
     """Body pose ``(T, 63)`` whose arms reach ``wrists`` (two-bone IK, each frame's swivel kept)."""
     bp = np.asarray(seq.body["body_pose"], np.float64)
-    _, _, body = _body_fk(seq, bp)
+    # the body model alone: the first arm_swivel below poses the body (an FK here was unused)
+    body = procedural_body(float(seq.height or C.BODY_HEIGHT), float(seq.hand_scale or 1.0))
     d = lambda a: torch.as_tensor(np.asarray(a, np.float64))  # noqa: E731
     go, tr = d(seq.body["global_orient"]), d(seq.body["transl"])
     pose = d(bp).reshape(-1, 21, 3)

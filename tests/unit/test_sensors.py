@@ -274,3 +274,41 @@ def test_stage_one_rigid_grouped_is_the_per_point_path_bit_for_bit(data, kind, m
             ref = (S.attention(np.maximum(sd, 0.0), C.AMBIENT_DECAY) if kind == "distance"
                    else sd < 0).astype(np.float32)
             np.testing.assert_array_equal(got.ambient, ref)
+
+
+@pytest.mark.parametrize("dtypes", [(np.float64, np.float64), (np.float32, np.float64),
+                                    (np.float64, np.float32)])
+def test_hand_points_in_object_is_to_world_then_world_to_object_bit_for_bit(dtypes):
+    """The fused hand -> object map keeps the two-step form's every rounding (also when the
+    wrists or the local points are float32: the result dtype is the two-step one)."""
+    from grip_bench.core.frames import world_to_object
+
+    rng = np.random.default_rng(3)
+    T, N = 5, 37
+    rot = Rotation.from_rotvec(rng.normal(size=(T, 3))).as_matrix().astype(dtypes[0])
+    transl = rng.normal(size=(T, 3)).astype(dtypes[0])
+    local = rng.normal(scale=0.1, size=(N, 3)).astype(dtypes[1])
+    R_o, t_o = Rotation.from_rotvec(rng.normal(size=(T, 3))).as_matrix(), rng.normal(size=(T, 3))
+    ref = world_to_object(S.to_world(local, rot, transl), R_o, t_o)
+    got = S.hand_points_in_object(local, rot, transl, R_o, t_o)
+    assert got.dtype == ref.dtype and got.shape == (T, N, 3)
+    assert np.array_equal(got, ref)
+
+
+def test_stage_one_is_the_world_path_bit_for_bit(data):
+    """stage_one (points straight into the object frame) against the world path it replaced:
+    to_world, then object_distance / proximity_feature of the world points."""
+    lib, seq = data
+    one, k = S.stage_one(lib, seq), seq.hand_scale or 1.0
+    for h, side in enumerate(("left", "right")):
+        rot, transl = S.wrist_frames(seq, side)
+        d = S.object_distance(lib, seq, S.to_world(S.ambient_points(side, k), rot, transl), False)
+        assert np.array_equal(one.ambient[:, h], S.attention(d, C.AMBIENT_DECAY).astype(np.float32))
+        feat, dist = S.proximity_feature(lib, seq,
+                                         S.to_world(S.mean_hand_points(side, k), rot, transl))
+        assert np.array_equal(one.proximity[:, h], feat)
+        assert np.array_equal(one.mean_dist[:, h], dist.mean(axis=1))
+        vox = S.signed_object_distance(lib, seq, S.to_world(S.voxel_points(side, k), rot, transl),
+                                       False)
+        assert np.array_equal(S.ambient_sensor(lib, seq, None, "voxel")[:, h],
+                              (vox < 0).astype(np.float32))
