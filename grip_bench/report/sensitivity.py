@@ -190,7 +190,10 @@ def seed_judgements(rows: pd.DataFrame, compare_to: str = SEED_COMPARE_TO,
     from .tables import judge, seed_labels, split_seed_label
 
     labels = list(dict.fromkeys(rows["method"]))
-    seeded = {m: [m, *extra] for m, extra in seed_labels(labels).items() if m in labels}
+    found = {m: [m, *extra] for m, extra in seed_labels(labels).items() if m in labels}
+    # a fixed order (the reference, then by name): the pairs' row order differs between the
+    # scoring unit and a re-read pairs file, and the section must not
+    seeded = {m: found[m] for m in sorted(found, key=lambda m: (m != compare_to, m))}
 
     def per_pair(method: str, col: str, scale: float) -> pd.Series:
         g = rows[rows["method"].isin(seeded[method])]

@@ -342,6 +342,11 @@ def test_a_gap_inside_the_seed_spread_is_noise_and_the_section_is_written(tmp_pa
     judged = seed_judgements(rows, compare_to="grip", n_boot=200, seed=0)
     blind = judged[(judged["method"] == "blind") & (judged["score"] == "reproduced")].iloc[0]
     assert abs(blind["diff"]) < blind["spread"] and blind["verdict"] == "within noise"
+    # the section's order does not depend on the order of the pair rows
+    shuffled = rows.sample(frac=1.0, random_state=3).reset_index(drop=True)
+    again = seed_judgements(shuffled, compare_to="grip", n_boot=200, seed=0)
+    assert list(again["method"]) == ["grip", "grip", "blind", "blind"]
+    pd.testing.assert_frame_equal(again, judged)
     out = tmp_path / "out"
     write_pairs_csv(out / SENSITIVITY_PAIRS, _seed_rows(gap=0.2, spread=0.04))
     written, data = write_sensitivity_report(out)
