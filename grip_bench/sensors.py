@@ -184,7 +184,15 @@ def signed_object_distance(
     too (exp(-5 d) tolerates a millimetre).
     """
     local = library.world_to_object(seq, world)
-    return library.field(seq.obj_name).signed_distance(local, far="coarse", exact_cells=exact_cells)
+    return sensor_distance(library.field(seq.obj_name), local, exact_cells)
+
+
+def sensor_distance(field: DistanceField, points: np.ndarray,
+                    exact_cells: bool = True) -> np.ndarray:
+    """Signed distance (m) of object-frame ``points (..., 3)`` as every sensor reads it: the
+    field's fine grid near the object and its coarse tiers beyond (``far="coarse"``; the
+    accuracy is measured in :func:`signed_object_distance`)."""
+    return field.signed_distance(points, far="coarse", exact_cells=exact_cells)
 
 
 def hand_object_distance(
@@ -195,7 +203,7 @@ def hand_object_distance(
     ``(T, N)`` (m) bit for bit, of hand-frame points ``local (N, 3)`` at wrists ``rot (T, 3,
     3)``, ``transl (T, 3)``, without the world array (:func:`hand_points_in_object`)."""
     obj = hand_points_in_object(local, rot, transl, seq.object_rotations(), seq.object["transl"])
-    return library.field(seq.obj_name).signed_distance(obj, far="coarse", exact_cells=exact_cells)
+    return sensor_distance(library.field(seq.obj_name), obj, exact_cells)
 
 
 def object_distance(
@@ -243,7 +251,12 @@ def proximity_feature(
     """Proximity sensor ``exp(-50 d)`` ``(T, 99)`` float32 and distances ``d (T, 99)`` (m)
     of the world positions ``points (T, 99, 3)`` of a hand's proximity vertices."""
     d = object_distance(library, seq, points)
-    return attention(d, C.PROXIMITY_DECAY).astype(np.float32), d
+    return proximity_sensor(d), d
+
+
+def proximity_sensor(d: np.ndarray) -> np.ndarray:
+    """GRIP's Proximity sensor ``exp(-50 d)`` float32 of vertex distances ``d >= 0`` (m)."""
+    return attention(d, C.PROXIMITY_DECAY).astype(np.float32)
 
 
 def future_cue(
@@ -330,8 +343,7 @@ def stage_one(
         amb.append(_ambient(library, seq, rot, transl, side, ambient))
         d = np.maximum(hand_object_distance(library, seq, mean_hand_points(side, scale), rot,
                                             transl), 0.0)  # proximity_feature's distances
-        h = attention(d, C.PROXIMITY_DECAY).astype(np.float32)
-        prox.append(h)
+        prox.append(proximity_sensor(d))
         mean.append(d.mean(axis=1))
     return StageOne(np.stack(amb, 1), np.stack(prox, 1), np.stack(mean, 1))
 
@@ -402,7 +414,7 @@ def stage_one_rigid(
     amb_pts, prox_pts = hand_sensor_points(float(scale), ambient)
     amb_bounds, prox_bounds = _sensor_bounds(float(scale), ambient)
     d = np.maximum(_rigid_distance(field, M, c, prox_pts, prox_bounds, True), 0.0)
-    prox = attention(d, C.PROXIMITY_DECAY).astype(np.float32)
+    prox = proximity_sensor(d)
     if ambient == "none":
         return StageOne(np.zeros((len(M), 2, 0), np.float32), prox, d.mean(axis=2))
     sd = _rigid_distance(field, M, c, amb_pts, amb_bounds, False)
@@ -474,7 +486,7 @@ def _rigid_distance(
     T, N = len(M), local.shape[1]
     q = apply_rigid(M, c, local).reshape(-1, N, 3)
     if q.size < 3 * _GROUPED_MIN_POINTS:
-        return field.signed_distance(q, far="coarse", exact_cells=exact_cells).reshape(T, 2, N)
+        return sensor_distance(field, q, exact_cells).reshape(T, 2, N)
     lo, hi = _rigid_boxes(M, c, bounds)
     return field.signed_distance_grouped(q, lo.reshape(-1, 3), hi.reshape(-1, 3),
                                          exact_cells).reshape(T, 2, N)

@@ -58,10 +58,11 @@ from ..geometry.rotations import (
     rotation_6d_to_matrix,
 )
 from ..sensors import (
-    attention,
     future_cue,
     hand_sensor_points,
     hand_to_object,
+    proximity_sensor,
+    sensor_distance,
     stage_one_rigid,
     wrist_frames,
 )
@@ -477,9 +478,9 @@ class GripStream:
         prox = np.zeros((1, 2, C.PROXIMITY_N_VERTS), np.float32)
         mask = np.zeros((1, 2), bool)
         if near.any():
-            d = np.maximum(take.field.signed_distance(q[near].reshape(-1, 3), far="coarse"), 0.0)
+            d = np.maximum(sensor_distance(take.field, q[near].reshape(-1, 3)), 0.0)
             d = d.reshape(-1, C.PROXIMITY_N_VERTS)
-            prox[0, near] = attention(d, C.PROXIMITY_DECAY).astype(np.float32)
+            prox[0, near] = proximity_sensor(d)
             mask[0, near] = d.min(axis=1) < dist
         if not mask.any():
             return np.array(poses, np.float32)

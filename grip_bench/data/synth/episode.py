@@ -44,6 +44,7 @@ from .objects import ObjectInstance
 from .scene import (
     Cast,
     EpisodeFailed,
+    hold_spans,
     make_scene,
     shifted,
     table_clearance,
@@ -250,13 +251,6 @@ def _finish(cast: Cast, relaxed: dict, tools: ObjectTools, index: int) -> Episod
     )
     seq = build_sequence(cast, mo, labels, index)
     return Episode(seq, mo, sc, cast, contacts, tools.contact_mesh)
-
-
-def hold_spans(attached: np.ndarray) -> list[tuple[int, int]]:
-    """Runs ``[a, b)`` of True in a (T,) bool mask (the frames a hand holds the object)."""
-    d = np.diff(np.concatenate([[0], attached.astype(int), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(),
-                    strict=True))
 
 
 def check_regrasp(cast: Cast, mo: Motion, sc: Script, contacts: dict) -> None:

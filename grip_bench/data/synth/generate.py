@@ -199,7 +199,7 @@ def run_group(
 
 def episode_stats(ep: Episode) -> dict:
     """Quality numbers of one episode (sums, so the report can pool them)."""
-    from .episode import hold_spans
+    from .scene import hold_spans
 
     mo, large = ep.motion, ep.cast.inst.large
     spans = {s: hold_spans(mo.attached[s]) for s in ep.contacts}

@@ -238,13 +238,17 @@ class Cast:
         With a regrasp the frames before the hand's second hold (a run of ``attached``)
         belong to its first grasp (``regrasp.grasps``), the others to ``grasps[side]``.
         """
-        every = np.ones(len(attached), bool)
         if side not in self.grasps:  # a hand that takes no part holds nothing
             return []
-        if self.regrasp is None or side not in self.regrasp.grasps:
-            return [(every, self.grasps[side])]
-        starts = np.flatnonzero(np.diff(np.concatenate([[False], attached]).astype(int)) == 1)
-        if len(starts) < 2:
-            return [(every, self.grasps[side])]
-        first = np.arange(len(attached)) < starts[1]
+        spans = hold_spans(attached) if self.regrasp and side in self.regrasp.grasps else []
+        if len(spans) < 2:
+            return [(np.ones(len(attached), bool), self.grasps[side])]
+        first = np.arange(len(attached)) < spans[1][0]
         return [(first, self.regrasp.grasps[side]), (~first, self.grasps[side])]
+
+
+def hold_spans(attached: np.ndarray) -> list[tuple[int, int]]:
+    """Runs ``[a, b)`` of True in a (T,) bool mask (the frames a hand holds the object)."""
+    d = np.diff(np.concatenate([[0], attached.astype(int), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(),
+                    strict=True))
