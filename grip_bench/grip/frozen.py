@@ -135,7 +135,8 @@ class FrozenMLP(nn.Module):
         hidden = len(w1)
         if isinstance(b.skip, nn.Linear):  # one GEMM for both readers of x
             w1 = torch.cat([w1, b.skip.weight.double()])
-            b1 = torch.cat([b1, torch.zeros(len(b.skip.weight), dtype=torch.float64)])
+            b1 = torch.cat([b1, torch.zeros(len(b.skip.weight), dtype=torch.float64,
+                                            device=b1.device)])
         cast = lambda t: t.detach().to(self.dtype).contiguous()  # noqa: E731
         return cast(w1), cast(b1), hidden, cast(w2), cast(b2)
 

@@ -91,8 +91,17 @@ class Options:
                              "use_rnet")
 
 
-def _t(a: ArrayLike) -> torch.Tensor:
-    return torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)
+def _t(a: ArrayLike, device: torch.device | None = None) -> torch.Tensor:
+    return torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32, device=device)
+
+
+def net_device(net: torch.nn.Module) -> torch.device:
+    """Where ``net``'s tensors live (its first parameter or buffer; CPU when it has none):
+    the pipeline is NumPy between the networks, so each call moves its inputs there and its
+    outputs back (``--device cuda``)."""
+    for t in (*net.parameters(), *net.buffers()):
+        return t.device
+    return torch.device("cpu")
 
 
 # --- ANet ---------------------------------------------------------------------------------
@@ -165,8 +174,9 @@ def anet_residual(anet: ANet, current: np.ndarray, future: np.ndarray) -> np.nda
     """One recursion step: ANet's correction ``(B, 4, 6)`` of the next frame's noisy arms,
     from the denoised arms ``current (B, 4, 6)`` and the noisy ``future (B, n_future, 4, 6)``
     (only frame t+1's latent is decoded)."""
-    lat = anet.encode(_t(current), _t(future))
-    return anet.decode(lat.z[:, 1]).numpy()
+    dev = net_device(anet)
+    lat = anet.encode(_t(current, dev), _t(future, dev))
+    return anet.decode(lat.z[:, 1]).cpu().numpy()
 
 
 @functools.lru_cache(maxsize=8)
@@ -330,20 +340,21 @@ class GripPipeline:
     def _run_cnet(self, group: list[dict]) -> list[np.ndarray]:
         """Encode every sequence's pairs, then decode only the latents the outputs use."""
         cnet = self.nets["cnet"]
+        dev = net_device(cnet)
         frames = np.cumsum([0] + [len(g["body"]) for g in group])
         rows = np.cumsum([0] + [len(g["pairs"]) for g in group])
         cat = lambda k: np.concatenate([g[k] for g in group])  # noqa: E731
         body, amb, prox = cat("body"), cat("ambient"), cat("proximity")
         pairs = np.concatenate([g["pairs"] + f for g, f in zip(group, frames, strict=False)])
         cue = cat("cue") if group[0]["cue"] is not None else None
-        z = torch.cat([cnet.encode(_t(body[p]), _t(amb[p]), _t(prox[p]),
-                                   None if cue is None else _t(cue[s:s + BATCH])).z
+        z = torch.cat([cnet.encode(_t(body[p], dev), _t(amb[p], dev), _t(prox[p], dev),
+                                   None if cue is None else _t(cue[s:s + BATCH], dev)).z
                        for s in range(0, len(pairs), BATCH) for p in [pairs[s:s + BATCH]]])
         pick = np.concatenate([g["row"] + r for g, r in zip(group, rows, strict=False)])
         latent = np.concatenate([g["latent"] for g in group])
-        zs = z[torch.as_tensor(pick), torch.as_tensor(latent)]  # (sum T, L)
+        zs = z[torch.as_tensor(pick, device=dev), torch.as_tensor(latent, device=dev)]  # (sum T, L)
         poses = torch.cat([cnet.decode(zs[s:s + BATCH])[0] for s in range(0, len(zs), BATCH)])
-        poses = poses.numpy()
+        poses = poses.cpu().numpy()
         return [poses[a:b] for a, b in zip(frames[:-1], frames[1:], strict=True)]
 
     def refine(
@@ -366,9 +377,11 @@ class GripPipeline:
         prox = np.concatenate([pr[f] for (_, pr), f in zip(rows, frames, strict=True)])
         mask = np.concatenate([m[f] for (m, _), f in zip(rows, frames, strict=True)])
         rnet, y = self.nets["rnet"], np.empty_like(x)
+        dev = net_device(rnet)
         for s in range(0, len(x), BATCH):
             sl = slice(s, s + BATCH)
-            y[sl] = rnet(_t(x[sl]), _t(prox[sl]), mask=torch.as_tensor(mask[sl])).numpy()
+            y[sl] = rnet(_t(x[sl], dev), _t(prox[sl], dev),
+                         mask=torch.as_tensor(mask[sl], device=dev)).cpu().numpy()
         out, at = [], 0
         for p, f in zip(poses, frames, strict=True):
             o = np.array(p, np.float32, copy=True)
