@@ -128,6 +128,19 @@ def run_stage(
 # about W times the throughput of one process with W threads, and a unit's result does not
 # depend on how many run beside it.
 PARALLEL_KINDS = ("checkpoint", "prediction")
+# Kinds whose every unit runs in a fresh worker process. A training unit's peak memory is
+# its own (GrabNet ~2.5 GB, more while the geometry cache is cold), but a kept worker's
+# peak only grows: reused across the train stage, one worker reached 7.4 GB on the default
+# profile (docs/performance.md). A fresh process costs one interpreter start and import
+# (~3 s) per unit, small beside a training unit's minutes; predictions (seconds each,
+# ~2 GB) keep their workers.
+FRESH_PROCESS_KINDS = ("checkpoint",)
+
+
+def tasks_per_worker(units: list[Unit]) -> int | None:
+    """``max_tasks_per_child`` of the pool running ``units``: 1 when any unit's kind is in
+    :data:`FRESH_PROCESS_KINDS`, else None (workers live for the whole stage)."""
+    return 1 if any(u.kind in FRESH_PROCESS_KINDS for u in units) else None
 
 
 def stage_workers(cfg: RunConfig) -> int:
@@ -170,7 +183,8 @@ def run_parallel(
     Units are started leaders first (a unit with ``after`` waits for that unit: GRIP's
     variants wait for the first one, which builds the shared sensor features and ANet),
     then the costliest predictions (``MethodSpec.predict_cost``), otherwise in plan order,
-    so that the stage does not end with one long unit on one worker. On an interrupt or a
+    so that the stage does not end with one long unit on one worker. Training units each get
+    a fresh process (:func:`tasks_per_worker`). On an interrupt or a
     failure the workers are terminated and their unfinished temp folders removed; finished
     units stay in the cache.
     """
@@ -183,7 +197,8 @@ def run_parallel(
     leaders = {u.params.get("after") for u in units}
     pending = sorted(units, key=lambda u: (u.key not in leaders, -_predict_cost(u, METHODS)))
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                               initializer=_init_unit_worker)
+                               initializer=_init_unit_worker,
+                               max_tasks_per_child=tasks_per_worker(units))
     running: dict = {}
     progress = _counter(len(units), name, st.cfg.progress)
     try:

@@ -1,0 +1,54 @@
+"""Training units each run in a fresh worker process (their peak memory is their own);
+prediction units share the stage's workers. Real spawn pools, trivial units."""
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+
+from grip_bench.bench.cache import Cache
+from grip_bench.bench.execute import RunState, run_parallel, tasks_per_worker
+from grip_bench.bench.plan import Plan, Unit
+
+
+@dataclasses.dataclass
+class _Cfg:  # the fields run_parallel reads
+    progress: bool = False
+
+
+def _no_log(msg: str) -> None:
+    pass
+
+
+def _record_pid(st, unit, tmp) -> dict:  # module level: a spawned worker imports it
+    return {"pid": os.getpid()}
+
+
+def _units(kind: str, n: int) -> list[Unit]:
+    return [Unit(kind, f"{kind}-{i:064x}", f"{kind} {i}", {"inputs": {"i": i}}) for i in range(n)]
+
+
+def _pids(tmp_path: Path, kind: str, n: int) -> list[int]:
+    units = _units(kind, n)
+    cache = Cache(tmp_path / "cache")
+    plan = Plan(units, {u.key: False for u in units}, data_key="", dataset="")
+    st = RunState(_Cfg(), cache, plan, log=_no_log)
+    run_parallel(st, kind, units, _record_pid, workers=2)
+    return [json.loads((cache.path(u.key) / "unit.json").read_text())["info"]["pid"]
+            for u in units]
+
+
+def test_the_policy_names_training_only():
+    assert tasks_per_worker(_units("checkpoint", 2)) == 1
+    assert tasks_per_worker(_units("prediction", 2)) is None
+    assert tasks_per_worker(_units("prediction", 1) + _units("checkpoint", 1)) == 1
+
+
+def test_each_training_unit_gets_its_own_process(tmp_path):
+    pids = _pids(tmp_path, "checkpoint", 3)
+    assert len(set(pids)) == 3 and os.getpid() not in pids
+
+
+def test_prediction_units_reuse_the_stage_workers(tmp_path):
+    pids = _pids(tmp_path, "prediction", 4)
+    assert len(set(pids)) <= 2 and os.getpid() not in pids
