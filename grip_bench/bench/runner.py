@@ -272,10 +272,12 @@ def assemble_viewer(st: RunState) -> None:
     """``OUT/viewer/``: 3D pages of each leaderboard method's worst, median, ... clean test
     sequence (``[run] viewer_sequences``, default 2; 0 removes earlier pages) and their
     ``index.json``, which the report links (``report.viewer``). Needs the cache's prediction
-    folders, so it runs here, not in ``grip-bench report``."""
+    folders, so it runs here, not in ``grip-bench report``. A page whose inputs and viewer
+    code are those of the page already there is kept (a cached rerun writes none)."""
     from ..methods.api import variants
     from ..report.viewer import DEFAULT_VIEWER_SEQUENCES, RUN_MAX_FRAMES, write_run_pages
     from ..results.schema import read_results
+    from .codehash import CodeIndex
 
     out = st.cfg.out
     n = int(st.cfg.settings.get("viewer_sequences", DEFAULT_VIEWER_SEQUENCES))
@@ -296,7 +298,8 @@ def assemble_viewer(st: RunState) -> None:
                    for i, (m, dirs) in enumerate(sorted(preds.items()))}
         pages = write_run_pages(out, read_results(out / "results.csv"), sources, n,
                                 frames=frames, split=MAIN_SPLIT, model_path=st.cfg.model_path,
-                                max_frames=RUN_MAX_FRAMES, workers=stage_workers(st.cfg))
+                                max_frames=RUN_MAX_FRAMES, workers=stage_workers(st.cfg),
+                                code=CodeIndex.installed().digest([write_run_pages.__module__]))
     if pages:
         st.log(f"viewer: {len(pages)} pages in {out / 'viewer'} "
                f"({sum(p['bytes'] for p in pages) / 1e6:.1f} MB)")

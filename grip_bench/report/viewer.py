@@ -43,7 +43,7 @@ import numpy as np
 
 from ..core.constants import CONTACT_THRESHOLD
 from ..core.errors import InputError
-from ..core.io import atomic_write_text
+from ..core.io import atomic_write_text, jsonable
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -602,7 +602,7 @@ def viewer_links(out: str | os.PathLike) -> dict[str, list[tuple[str, Path]]]:
 
 def write_index(out: str | os.PathLike, pages: Sequence[dict]) -> Path:
     """``OUT/viewer/index.json``: ``{"format", "pages": [{method, sequence, why, metric,
-    value, unit, page, bytes}]}``."""
+    value, unit, page, bytes[, inputs]}]}`` (``inputs``: :func:`page_inputs`, run pages)."""
     doc = {"format": PAGE_FORMAT, "pages": list(pages)}
     return atomic_write_text(Path(out) / VIEWER_DIR / INDEX_FILE,
                              json.dumps(doc, sort_keys=True, indent=1, allow_nan=False) + "\n")
@@ -622,16 +622,40 @@ def remove_pages(out: str | os.PathLike, keep: Sequence[str] = ()) -> None:
             folder.rmdir()
 
 
+def page_inputs(job: tuple, code: str) -> str:
+    """SHA-256 of everything a run page (a :func:`write_run_pages` job) is made from: the
+    viewer's ``code`` digest, the bytes of both sequence files, and the method, metrics,
+    per-frame curves, model path, frame cap and title; not the page's own path."""
+    _, gt_file, pred_file, *rest = job
+    h = hashlib.sha256(code.encode())
+    for f in (gt_file, pred_file):
+        h.update(hashlib.sha256(Path(f).read_bytes()).digest())
+    h.update(json.dumps(jsonable(rest), sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def _kept_page(out: Path, name: str, digest: str, earlier: dict[str, dict]) -> int | None:
+    """The size of the page ``name`` an earlier run wrote from the same inputs, else None."""
+    e, path = earlier.get(name), out / VIEWER_DIR / name
+    if e is None or e.get("inputs") != digest or not path.is_file():
+        return None
+    return path.stat().st_size
+
+
 def write_run_pages(out: str | os.PathLike, results: pd.DataFrame,
                     sources: Mapping[str, tuple[Path, Path]], n: int, *,
                     frames: pd.DataFrame | None = None, split: str = "test",
                     model_path: str | os.PathLike | None = None,
-                    max_frames: int | None = None, workers: int = 1) -> list[dict]:
+                    max_frames: int | None = None, workers: int = 1,
+                    code: str | None = None) -> list[dict]:
     """A run's pages: for each method of ``sources`` (``{method: (prediction folder, ground
     truth folder)}``, both GRAB layout, clean split), the ``n`` sequences of
     :func:`choose_sequences`, ground truth beside the method; writes the index. ``n = 0``
     removes the pages of an earlier run. ``workers`` > 1 writes the pages in that many
     processes (``metrics.aggregate.map_tasks``; each page is packed alone: the same bytes).
+    With ``code`` (a digest of the viewer's code), each entry records its
+    :func:`page_inputs` and a page whose inputs match the earlier index's entry is kept,
+    not written again (a cached rerun's report took minutes writing identical pages).
     Returns the index entries."""
     from ..metrics.aggregate import map_tasks
 
@@ -655,10 +679,19 @@ def write_run_pages(out: str | os.PathLike, results: pd.DataFrame,
                          str(pred_dir / "grab" / f"{seq_id}.npz"), method, metrics, per_frame,
                          model_path, max_frames, title))
             entries.append({**pick, "method": method, "page": name})
+    sizes: list[int | None] = [None] * len(jobs)
+    if code is not None:
+        earlier = {e["page"]: e for e in read_index(out)} if (out / VIEWER_DIR).is_dir() else {}
+        for i, (job, entry) in enumerate(zip(jobs, entries, strict=True)):
+            entry["inputs"] = page_inputs(job, code)
+            sizes[i] = _kept_page(out, entry["page"], entry["inputs"], earlier)
+    todo = [i for i, size in enumerate(sizes) if size is None]
     # the evaluation's kept worker pool (a run has just evaluated against this ground truth);
     # a page reads nothing through the pool's object library
     pool_dir = next(iter(sources.values()))[1] if sources else out
-    sizes = map_tasks(_write_page, jobs, Path(pool_dir), workers, False)
+    for i, size in zip(todo, map_tasks(_write_page, [jobs[i] for i in todo], Path(pool_dir),
+                                       workers, False), strict=True):
+        sizes[i] = size
     for entry, size in zip(entries, sizes, strict=True):
         entry["bytes"] = size
     remove_pages(out, keep=[e["page"] for e in entries])

@@ -285,6 +285,37 @@ def test_run_pages_in_two_processes_are_the_serial_bytes(small, tmp_path):
     assert len(outs[1]) == 3 and outs[1] == outs[2]  # two pages and index.json
 
 
+def test_a_rerun_keeps_pages_whose_inputs_match(small, tmp_path, monkeypatch):
+    """With a code digest, a page whose inputs match the index's entry is not written again;
+    another code digest or another prediction file writes it again (same bytes as fresh)."""
+    import shutil
+
+    root, _, _ = small
+    df = _results({"s1/mug_lift_1": 4.5}, method="m")
+    sources = {"m": (root / "pred", root / "gt")}
+    out = tmp_path / "out"
+    first = V.write_run_pages(out, df, sources, 1, code="v1")
+    page = out / "viewer" / first[0]["page"]
+    fresh = page.read_bytes()
+    assert len(first[0]["inputs"]) == 64 and first[0]["bytes"] == len(fresh)
+    written = []
+    real = V._write_page
+    monkeypatch.setattr(V, "_write_page", lambda job: written.append(job) or real(job))
+    again = V.write_run_pages(out, df, sources, 1, code="v1")
+    assert written == [] and again == first and page.read_bytes() == fresh
+    V.write_run_pages(out, df, sources, 1, code="v2")
+    assert len(written) == 1 and page.read_bytes() == fresh
+    moved = tmp_path / "pred2"
+    shutil.copytree(root / "pred", moved)
+    seq = next((moved / "grab").rglob("*.npz"))
+    seq.write_bytes(seq.read_bytes() + b"")  # same bytes: still kept
+    V.write_run_pages(out, df, {"m": (moved, root / "gt")}, 1, code="v2")
+    assert len(written) == 1  # the inputs are the files' bytes, not their paths
+    page.unlink()  # a missing page is written whatever the index says
+    V.write_run_pages(out, df, sources, 1, code="v2")
+    assert len(written) == 2 and page.read_bytes() == fresh
+
+
 def test_index_round_trip_and_removal(tmp_path):
     (tmp_path / "viewer").mkdir()
     (tmp_path / "viewer" / "m__s1_a.html").write_text("x")
