@@ -187,3 +187,27 @@ def test_counterfactual_pairs_write_a_scoreable_split(tmp_path):
     rows = score_pairs(out, {"oracle": out})
     assert all(ok for _, ok, _ in sanity_gate(rows))
     np.testing.assert_allclose(rows.loc[rows["method"] == "oracle", "reproduced"], 1.0)
+
+
+@pytest.mark.slow
+def test_counterfactual_pairs_are_the_same_bytes_for_any_worker_count(tmp_path):
+    """Sources grouped by object over a spawn pool: every file (the manifest but its wall
+    time) is the bytes of the in-process run."""
+    from grip_bench.data.grab_io import dataset_hash
+
+    docs, files = {}, {}
+    for w in (1, 2):
+        out = tmp_path / f"w{w}"
+        docs[w] = CF.counterfactual_pairs(out, "smoke", seed=0, n_sources=4, progress=False,
+                                          workers=w)
+        files[w] = {p.relative_to(out).as_posix(): p.read_bytes()
+                    for p in sorted(out.rglob("*")) if p.is_file() and p.name != "manifest.json"}
+        man = json.loads((out / "manifest.json").read_text())
+        assert man.pop("data_hash") == dataset_hash(out)
+        man.pop("wall_time_s")
+        files[w]["manifest"] = man
+    assert docs[1] == docs[2] and docs[1]["counts"]["pairs"] >= 2
+    assert len({p["object_a"] for p in docs[1]["pairs"]}) >= 2  # groups on both workers
+    assert files[1] == files[2]
+    with pytest.raises(InputError):
+        CF.counterfactual_pairs(tmp_path / "bad", "smoke", n_sources=1, workers=0)

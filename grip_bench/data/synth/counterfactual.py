@@ -26,7 +26,9 @@ rigid motion frame for frame; only the object's mesh differs, and with it the cl
 :func:`counterfactual_pairs` writes a GRAB-layout dataset folder: both members of every pair
 under ``grab/``, their meshes, ``splits.json`` (every object in ``test``, so each stage that
 scores the test split runs on it unchanged), ``pairs.json`` (split label
-``constants.CF_SPLIT``, the pairs, every rejected twin and why) and ``manifest.json``.
+``constants.CF_SPLIT``, the pairs, every rejected twin and why) and ``manifest.json``. The
+sources run over a spawn process pool, grouped by object (:func:`_source_group`); files are
+named and written by the caller in plan order, so the bytes do not depend on the worker count.
 
 World frame: y up (docs/architecture.md); object frame: y up, resting on
 ``y = -rest_height``. Units: metres, radians.
@@ -52,6 +54,7 @@ from ...core import constants as C
 from ...core.errors import InputError
 from ...core.frames import SIDES
 from ...core.io import atomic_write_bytes, atomic_write_text
+from ...core.threads import single_thread
 from ..grab_io import OBJECT_MESH_DIR, dataset_hash, write_grab
 from ..sequence import Sequence
 from ..splits import write_splits
@@ -358,22 +361,105 @@ def held_out_objects(profile: str, seed: int) -> list[ObjectInstance]:
     return [o for o in objects if o.name in test]
 
 
+def _source_group(inst: ObjectInstance, items: list[SourceItem], subjects: list[Subject],
+                  seed: int) -> list[dict]:
+    """Worker: the source episodes and twins of the plan items of one object, in plan order.
+
+    One :class:`ObjectTools` serves the group, as one served every item of the object in
+    a single process, so its caches see the same calls in the same order whatever the
+    worker count; torch runs on one intra-op thread (the same floating-point path in a
+    worker and in-process). Returns one dict per item: ``skipped`` (the failure messages),
+    or ``rejected`` records and, when a twin passed, ``pair`` (the ``pairs.json`` entry but
+    its file names), both sequences and the twin's mesh as PLY bytes.
+    """
+    with single_thread():
+        tools = ObjectTools(inst)
+        return [_source_result(tools, subjects[item.subject], item, seed) for item in items]
+
+
+def _source_result(tools: ObjectTools, subject: Subject, item: SourceItem, seed: int) -> dict:
+    """One plan item of :func:`_source_group` (see there)."""
+    ep, errors = _source_episode(subject, tools, item, seed)
+    if ep is not None and not one_hand(ep):
+        errors, ep = errors + ["not a one-hand episode"], None
+    if ep is None:
+        return {"index": item.index, "skipped": {"source": item.index, "object": item.object,
+                                                 "intent": item.intent, "errors": errors}}
+    res: dict = {"index": item.index, "rejected": []}
+    twin_name = f"{item.object}_cf{item.index + 1}"
+    for variant in variant_order(seed, item.index)[:C.CF_TWIN_TRIES]:
+        try:
+            tw = make_twin(ep, variant, twin_name)
+        except TwinRejected as err:
+            res["rejected"].append({"source": item.index, "object": item.object,
+                                    "variant": variant[0], "reason": err.reason,
+                                    "detail": str(err)})
+            continue
+        res["seq_a"], res["seq_b"], res["verb"] = ep.sequence, tw.sequence, ep.cast.verb
+        res["mesh_b"] = (tw.inst.name, contact_mesh(tw.inst).export(file_type="ply"))
+        res["pair"] = {
+            "id": f"cf{item.index + 1}", "a": None, "b": None,
+            "object_a": item.object, "object_b": tw.inst.name,
+            "family": tw.inst.family, "subject": subject.sid, "intent": ep.cast.verb,
+            "side": tw.side, "grasp_kind": tw.grasp.kind, "variant": tw.variant,
+            "scale_xz": list(tw.scale_xz), "pivot": [round(float(x), 6) for x in tw.pivot],
+            "frames": ep.sequence.n_frames,
+            "gt_max_vertex_change_mm": round(tw.max_change * 1000, 3),
+            "gt_aperture_change_mm": round(tw.aperture_change * 1000, 3),
+        }
+        break
+    return res
+
+
+def _run_sources(objects: dict[str, ObjectInstance], items: list[SourceItem],
+                 subjects: list[Subject], seed: int, workers: int, progress: bool) -> list[dict]:
+    """:func:`_source_group` over the items grouped by object (the largest groups first),
+    in-process for one worker, else over a spawn process pool; results in plan order."""
+    from tqdm import tqdm
+
+    by_object: dict[str, list[SourceItem]] = {}
+    for item in items:
+        by_object.setdefault(item.object, []).append(item)
+    groups = sorted(by_object.items(), key=lambda g: -len(g[1]))  # stable: plan order on ties
+    bar = tqdm(total=len(items), desc="counterfactual", unit="src", disable=not progress)
+    results: list[dict] = []
+    if workers <= 1:
+        for name, its in groups:
+            results += _source_group(objects[name], its, subjects, seed)
+            bar.update(len(its))
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+            futures = {pool.submit(_source_group, objects[name], its, subjects, seed): len(its)
+                       for name, its in groups}
+            for fut in as_completed(futures):
+                results += fut.result()
+                bar.update(futures[fut])
+    bar.close()
+    return sorted(results, key=lambda r: r["index"])
+
+
 def counterfactual_pairs(out_dir: str | os.PathLike, profile: str = "smoke", seed: int = 0,
                          n_sources: int = 12, intents: tuple[str, ...] = C.CF_INTENTS,
-                         progress: bool = True) -> dict:
+                         progress: bool = True, workers: int | None = None) -> dict:
     """Write a counterfactual dataset of up to ``n_sources`` pairs into ``out_dir``.
 
     Sources are one-hand episodes of the test objects of SynthGRAB ``profile`` / ``seed``
     (:func:`held_out_objects`) with subjects of that profile; per source, up to
     ``CF_TWIN_TRIES`` variants (:func:`variant_order`) are tried until a twin passes.
+    ``workers``: processes (None: one per CPU; at most one per object); the sources of one
+    object run in one process, and the files are named and written here in plan order, so
+    every written byte (but the manifest's wall time) is the same for any worker count.
     Deterministic for a seed. Returns the contents of ``pairs.json``.
     """
-    from tqdm import tqdm
-
     from .generate import get_profile
 
     if n_sources < 1:
         raise InputError(f"need at least one source episode, got {n_sources}", "--pairs")
+    if workers is not None and workers < 1:
+        raise InputError(f"need at least one worker, got {workers}", "workers")
     start = time.perf_counter()
     prof = get_profile(profile)
     out = Path(out_dir)
@@ -381,53 +467,37 @@ def counterfactual_pairs(out_dir: str | os.PathLike, profile: str = "smoke", see
     subjects = make_subjects(prof.n_subjects, seed)
     objects = {o.name: o for o in held_out_objects(profile, seed)}
     items = source_plan(list(objects.values()), len(subjects), n_sources, seed, intents)
-    tools = {}
-    pairs, rejected, skipped, written = [], [], [], {}
+    n_objects = len({item.object for item in items})
+    workers = max(1, min(workers or os.cpu_count() or 1, n_objects))
+    pairs, rejected, skipped = [], [], []
+    written: dict[str, bytes] = {}  # object name -> its mesh (PLY)
     count: Counter = Counter()
-    for item in tqdm(items, desc="counterfactual", unit="src", disable=not progress):
-        if item.object not in tools:
-            tools[item.object] = ObjectTools(objects[item.object])
-        subject = subjects[item.subject]
-        ep, errors = _source_episode(subject, tools[item.object], item, seed)
-        if ep is not None and not one_hand(ep):
-            errors, ep = errors + ["not a one-hand episode"], None
-        if ep is None:
-            skipped.append({"source": item.index, "object": item.object, "intent": item.intent,
-                            "errors": errors})
+    for item, res in zip(items, _run_sources(objects, items, subjects, seed, workers, progress),
+                         strict=True):
+        if "skipped" in res:
+            skipped.append(res["skipped"])
             continue
-        twin_name = f"{item.object}_cf{item.index + 1}"
-        for variant in variant_order(seed, item.index)[:C.CF_TWIN_TRIES]:
-            try:
-                tw = make_twin(ep, variant, twin_name)
-            except TwinRejected as err:
-                rejected.append({"source": item.index, "object": item.object,
-                                 "variant": variant[0], "reason": err.reason, "detail": str(err)})
-                continue
-            key = (subject.sid, item.object, ep.cast.verb)
-            count[key] += 1
-            seq_a = dataclasses.replace(
-                ep.sequence, name=f"{subject.sid}/{item.object}_{ep.cast.verb}_{count[key]}")
-            rel_a = f"grab/{seq_a.name}.npz"
-            rel_b = f"grab/{tw.sequence.name}.npz"
-            write_grab(seq_a, out / rel_a)
-            write_grab(tw.sequence, out / rel_b)
-            written[item.object] = objects[item.object]
-            written[tw.inst.name] = tw.inst
-            pairs.append({
-                "id": f"cf{item.index + 1}", "a": rel_a, "b": rel_b,
-                "object_a": item.object, "object_b": tw.inst.name,
-                "family": tw.inst.family, "subject": subject.sid, "intent": ep.cast.verb,
-                "side": tw.side, "grasp_kind": tw.grasp.kind, "variant": tw.variant,
-                "scale_xz": list(tw.scale_xz), "pivot": [round(float(x), 6) for x in tw.pivot],
-                "frames": ep.sequence.n_frames,
-                "gt_max_vertex_change_mm": round(tw.max_change * 1000, 3),
-                "gt_aperture_change_mm": round(tw.aperture_change * 1000, 3),
-            })
-            break
+        rejected += res["rejected"]
+        if "pair" not in res:
+            continue
+        subject = subjects[item.subject]
+        key = (subject.sid, item.object, res["verb"])
+        count[key] += 1
+        seq_a = dataclasses.replace(
+            res["seq_a"], name=f"{subject.sid}/{item.object}_{res['verb']}_{count[key]}")
+        rel_a = f"grab/{seq_a.name}.npz"
+        rel_b = f"grab/{res['seq_b'].name}.npz"
+        write_grab(seq_a, out / rel_a)
+        write_grab(res["seq_b"], out / rel_b)
+        if item.object not in written:
+            written[item.object] = contact_mesh(objects[item.object]).export(file_type="ply")
+        name_b, ply_b = res["mesh_b"]
+        written[name_b] = ply_b
+        pairs.append({**res["pair"], "a": rel_a, "b": rel_b})
     folder = out / OBJECT_MESH_DIR
     folder.mkdir(parents=True, exist_ok=True)
-    for name, inst in sorted(written.items()):
-        atomic_write_bytes(folder / f"{name}.ply", contact_mesh(inst).export(file_type="ply"))
+    for name, ply in sorted(written.items()):
+        atomic_write_bytes(folder / f"{name}.ply", ply)
     write_splits(out, {"train": [], "val": [], "test": sorted(written)})
     attempts = len(pairs) + len(rejected)
     doc = {
