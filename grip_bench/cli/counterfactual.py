@@ -30,7 +30,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(default smoke)")
     m.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     m.add_argument("--sources", type=int, default=12, metavar="N",
-                   help="source episodes, at most one pair each (default 12; ~10 s each)")
+                   help="source episodes, at most one pair each (default 12; ~1 CPU-s each)")
+    m.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="processes (default: one per CPU, at most one per test object); "
+                        "the files are the same bytes for any N")
     m.set_defaults(func=run_make)
     s = cmd.add_parser("score", help="geometry-sensitivity table of prediction folders")
     s.add_argument("--data", type=Path, required=True, metavar="DIR",
@@ -45,12 +48,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_make(args: argparse.Namespace) -> int:
     import sys
 
+    from ..core.errors import InputError
     from ..core.io import ensure_writable_dir
     from ..data.synth.counterfactual import counterfactual_pairs
 
+    if args.workers is not None and args.workers < 1:
+        raise InputError("must be at least 1", "--workers")
     ensure_writable_dir(args.out)
     doc = counterfactual_pairs(args.out, args.profile, args.seed, args.sources,
-                               progress=sys.stderr.isatty())
+                               progress=sys.stderr.isatty(), workers=args.workers)
     c = doc["counts"]
     print(f"{c['pairs']} pairs from {doc['sources']} source episodes "
           f"({c['sources_failed']} failed to plan); twins tried {c['twins_tried']}, "
