@@ -58,12 +58,14 @@ _SPHERE_MARGIN = 1e-9  # m; bounding spheres are padded so rounding never culls 
 # size, so a triangle's cell lists the few rays near it; a coarser cell only when a ray
 # set spans more than _GRID_MAX_SIDE cells (memory). _GRID_SLACK pads the reach for the
 # rounding of a centre's cell. A grid reaches whole multiples of _GRID_REACH_STEP mm (a
-# hand's largest triangle rarely asks for a rebuild). _GRID_CACHE: ray sets (objects) kept.
+# hand's largest triangle rarely asks for a rebuild). _GRID_CACHE_BYTES: memory of the
+# cached grids (~5-10 MB per object at the default 256 samples).
 _GRID_CELL = 0.005  # m
 _GRID_MAX_SIDE = 160
 _GRID_SLACK = 1e-6  # m
 _GRID_REACH_STEP = 4  # mm
-_GRID_CACHE = 8
+_GRID_CACHE_BYTES = 256 * 2**20
+_GRID_BUILD_RAYS = 32  # rays per chunk of a grid build (~100k cells, a few MB)
 
 
 # ----------------------------------------------------------------------------- ray casting
@@ -71,13 +73,18 @@ _GRID_CACHE = 8
 
 def _near_segment(
     o: torch.Tensor, d: torch.Tensor, centre: torch.Tensor, radius: torch.Tensor,
-    max_dist: float,
+    ray: torch.Tensor, tri: torch.Tensor, max_dist: float,
 ) -> torch.Tensor:
-    """Whether spheres ``(centre, radius)`` come within reach of the segments
-    ``o + t d, |t| <= max_dist``; broadcasts over leading dims, ``(...)`` bool."""
-    w = centre - o
-    s = (w * d).sum(-1).clamp(-max_dist, max_dist)
-    return (w - s[..., None] * d).pow(2).sum(-1) <= (radius + _SPHERE_MARGIN).pow(2)
+    """Whether the spheres ``(centre[:, tri], radius[tri])`` come within reach of the
+    segments ``o[:, ray] + t d[:, ray], |t| <= max_dist``: ``(P,)`` bool for the pairs
+    ``ray, tri (P,)``. Points come as coordinate planes (``o, d (3, N)``, ``centre
+    (3, M)``), so each pair reads scalars and no (P, 3) rows are gathered or reduced; the
+    sums run x + y + z, the order of ``sum(-1)`` over rows, so the values are the same."""
+    w = [centre[k][tri] - o[k][ray] for k in range(3)]
+    dk = [d[k][ray] for k in range(3)]
+    s = (w[0] * dk[0] + w[1] * dk[1] + w[2] * dk[2]).clamp_(-max_dist, max_dist)
+    gap = (w[0] - s * dk[0]).pow_(2) + (w[1] - s * dk[1]).pow_(2) + (w[2] - s * dk[2]).pow_(2)
+    return gap <= (radius[tri] + _SPHERE_MARGIN).pow_(2)
 
 
 def _morton_order(points: torch.Tensor) -> torch.Tensor:
@@ -110,6 +117,14 @@ class _RayGrid:
     start: torch.Tensor  # (n_cells + 1,) int64 offsets into rays / key
     rays: torch.Tensor  # (nnz,) int64 ray ids
     key: torch.Tensor  # (nnz,) int64 cell * (reach_mm + 1) + ceil(distance / mm), ascending
+    near: torch.Tensor  # (n_cells,) int16 whole mm to the cell's nearest ray (reach_mm + 1: none)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the grid's arrays (bytes)."""
+        return sum(
+            x.numel() * x.element_size() for x in (self.start, self.rays, self.key, self.near)
+        )
 
 
 _GRIDS: OrderedDict[tuple, _RayGrid] = OrderedDict()  # most recently used last
@@ -122,11 +137,78 @@ def _grid_cell(o: np.ndarray, d: np.ndarray, max_dist: float) -> float:
     return max(_GRID_CELL, float((ends.max(0) - ends.min(0)).max()) / _GRID_MAX_SIDE)
 
 
+def _expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(row, rank)`` of ``counts (R,)`` items per row: each item's row and its place in
+    it, ``(sum(counts),)`` int64 each, in row order."""
+    row = np.repeat(np.arange(len(counts)), counts)
+    return row, np.arange(len(row)) - np.repeat(np.cumsum(counts) - counts, counts)
+
+
+def _ray_cells(
+    o: np.ndarray, d: np.ndarray, max_dist: float, reach: float, lo: np.ndarray, h: float,
+    i0: np.ndarray, i1: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cells ``(M, 3)`` int64 and their ray ``(M,)`` (ascending, each cell once per ray)
+    that may have their centre within ``reach`` (m) of the segments ``o + s d,
+    |s| <= max_dist`` (``o, d (N, 3)``), among each ray's box of cells ``i0, i1 (N, 3)``
+    (inclusive): a superset of them, built slab by slab across each ray's main axis ``k``.
+    The centres of slab ``j`` lie on one plane ``x_k = c_j``; those within ``reach`` are
+    near the stretch of the segment with ``|x_k - c_j| <= reach``, so the slab's cells are
+    the box of that stretch widened by ``reach``. Bounds are padded by ``_GRID_SLACK`` (m)
+    against rounding, so no cell within reach is left out, and a long segment visits a
+    thin tube of its bounding box instead of all of it (~6x fewer cells)."""
+    n = len(o)
+    k = np.argmax(np.abs(d), 1)  # (N,) |d[k]| >= |d| / sqrt(3)
+    point = d[np.arange(n), k] == 0  # a zero direction: the segment is a point
+    if point.any():  # the whole (small) box of each such ray
+        cells = [
+            (ray, np.stack(np.meshgrid(*(np.arange(i0[ray, a], i1[ray, a] + 1)
+                                         for a in range(3)), indexing="ij"), -1).reshape(-1, 3))
+            for ray in np.flatnonzero(point)
+        ]
+    ray, j = _expand(np.where(point, 0, i1[np.arange(n), k] - i0[np.arange(n), k] + 1))
+    kk = k[ray]
+    j += i0[ray, kk]  # (J,) the slabs along axis k of each ray
+    plane = lo[kk] + (j + 0.5) * h  # the slabs' centre coordinate
+    pad = reach + _GRID_SLACK
+    ok, dk = o[ray, kk], d[ray, kk]
+    sa, sb = (plane - pad - ok) / dk, (plane + pad - ok) / dk
+    s0 = np.maximum(np.minimum(sa, sb), -max_dist)
+    s1 = np.minimum(np.maximum(sa, sb), max_dist)
+    keep = s0 <= s1
+    ray, kk, j, s0, s1 = ray[keep], kk[keep], j[keep], s0[keep], s1[keep]
+    first, size = [], []
+    for m in (kk + 1) % 3, (kk + 2) % 3:  # each other axis: centres in [x0 - pad, x1 + pad]
+        x0, x1 = o[ray, m] + s0 * d[ray, m], o[ray, m] + s1 * d[ray, m]
+        c0 = np.ceil((np.minimum(x0, x1) - pad - lo[m]) / h - 0.5 - _GRID_SLACK / h)
+        c1 = np.floor((np.maximum(x0, x1) + pad - lo[m]) / h - 0.5 + _GRID_SLACK / h)
+        c0 = np.clip(c0, i0[ray, m], i1[ray, m]).astype(np.int64)
+        c1 = np.clip(c1, i0[ray, m], i1[ray, m]).astype(np.int64)
+        first.append(c0)
+        size.append(np.maximum(c1 - c0 + 1, 0))
+    slab, rank = _expand(size[0] * size[1])
+    idx = np.empty((len(slab), 3), np.int64)
+    rows = np.arange(len(slab))
+    kk = kk[slab]
+    idx[rows, kk] = j[slab]
+    idx[rows, (kk + 1) % 3] = first[0][slab] + rank // size[1][slab]
+    idx[rows, (kk + 2) % 3] = first[1][slab] + rank % size[1][slab]
+    owner = ray[slab]
+    if point.any():
+        owner = np.concatenate([owner] + [np.full(len(c), r) for r, c in cells])
+        idx = np.concatenate([idx] + [c for _, c in cells])
+        order = np.argsort(owner, kind="stable")
+        owner, idx = owner[order], idx[order]
+    return idx, owner
+
+
 def _ray_grid(o: np.ndarray, d: np.ndarray, max_dist: float, reach_mm: int) -> _RayGrid:
     """A :class:`_RayGrid` of rays ``o, d (N, 3)`` that reaches at least ``reach_mm``,
     cached per ray set: the rays of a prediction are the object's fixed surface samples,
     the same for every frame, window and hand, while only the hand moves. A wider reach
-    than the cached grid's rebuilds it (rounded up to ``_GRID_REACH_STEP`` mm)."""
+    than the cached grid's rebuilds it (rounded up to ``_GRID_REACH_STEP`` mm). The cache
+    keeps the most recently used grids up to ``_GRID_CACHE_BYTES`` (a test split's objects
+    each come back several times; a build of 256 rays costs ~0.1 s)."""
     key = (hashlib.sha1(o.tobytes() + d.tobytes()).hexdigest(), o.shape, max_dist)
     grid = _GRIDS.get(key)
     if grid is not None and grid.reach_mm >= reach_mm:
@@ -138,30 +220,45 @@ def _ray_grid(o: np.ndarray, d: np.ndarray, max_dist: float, reach_mm: int) -> _
     h = _grid_cell(o, d, max_dist)
     lo = np.minimum(a, b).min(0) - reach - h
     dims = np.ceil((np.maximum(a, b).max(0) + reach + h - lo) / h).astype(np.int64)
-    keys, owners = [], []
-    for i in range(len(o)):  # once per ray set: the cells of each ray's dilated box
-        i0 = np.clip(np.floor((np.minimum(a[i], b[i]) - reach - lo) / h) - 1, 0, dims - 1)
-        i1 = np.clip(np.floor((np.maximum(a[i], b[i]) + reach - lo) / h) + 1, 0, dims - 1)
-        axes = [np.arange(i0[k], i1[k] + 1, dtype=np.int64) for k in range(3)]
-        idx = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        w = lo + (idx + 0.5) * h - o[i]
-        s = np.clip(w @ d[i], -max_dist, max_dist)
-        dist = np.sqrt(((w - s[:, None] * d[i]) ** 2).sum(1))
+    i0 = np.clip(np.floor((np.minimum(a, b) - reach - lo) / h) - 1, 0, dims - 1).astype(np.int64)
+    i1 = np.clip(np.floor((np.maximum(a, b) + reach - lo) / h) + 1, 0, dims - 1).astype(np.int64)
+    keys, rays = [], []
+    for c in range(0, len(o), _GRID_BUILD_RAYS):  # once per ray set; chunks bound the memory
+        sl = slice(c, c + _GRID_BUILD_RAYS)
+        idx, owner = _ray_cells(o[sl], d[sl], max_dist, reach, lo, h, i0[sl], i1[sl])
+        owner += c
+        bounds = np.searchsorted(owner, np.arange(c, c + len(o[sl]) + 1))
+        per_ray = np.diff(bounds)  # cells of each ray (owner ascends)
+        w = lo + (idx + 0.5) * h - np.repeat(o[sl], per_ray, 0)  # (M, 3)
+        # The distances of the cells as the first (per ray, whole box) build computed
+        # them, its per-ray matrix-vector product included: the same grid bit for bit.
+        s = np.empty(len(w))
+        for i, (p, q) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+            s[p:q] = w[p:q] @ d[c + i]
+        np.clip(s, -max_dist, max_dist, out=s)
+        dist = np.sqrt(((w - s[:, None] * np.repeat(d[sl], per_ray, 0)) ** 2).sum(1))
         near = dist <= reach
-        lin = (idx[near, 0] * dims[1] + idx[near, 1]) * dims[2] + idx[near, 2]
+        idx = idx[near]
+        lin = (idx[:, 0] * dims[1] + idx[:, 1]) * dims[2] + idx[:, 2]
         keys.append(lin * (reach_mm + 1) + np.ceil(dist[near] / 1e-3).astype(np.int64))
-        owners.append(np.full(len(lin), i, np.int64))
-    k, ray = np.concatenate(keys), np.concatenate(owners)
-    order = np.argsort(k, kind="stable")
-    counts = np.bincount(k // (reach_mm + 1), minlength=int(dims.prod()))
+        rays.append(owner[near])
+    k, ray = np.concatenate(keys), np.concatenate(rays)
+    # a cell's rays by key, then in ray order: (key, ray) made one unique integer, so the
+    # fast (unstable) sort gives that order
+    order = np.argsort(k * len(o) + ray)
+    k, ray = k[order], ray[order]
+    cells = k // (reach_mm + 1)
+    start = np.r_[0, np.cumsum(np.bincount(cells, minlength=int(dims.prod())))]
+    near = np.full(int(dims.prod()), reach_mm + 1, np.int16)
+    busy = start[1:] > start[:-1]
+    near[busy] = k[start[:-1][busy]] - cells[start[:-1][busy]] * (reach_mm + 1)
     grid = _RayGrid(
         torch.as_tensor(lo), h, tuple(int(x) for x in dims), reach_mm,
-        torch.as_tensor(np.r_[0, np.cumsum(counts)]), torch.as_tensor(ray[order]),
-        torch.as_tensor(k[order]),
+        torch.as_tensor(start), torch.as_tensor(ray), torch.as_tensor(k), torch.as_tensor(near),
     )
     _GRIDS[key] = grid
     _GRIDS.move_to_end(key)
-    while len(_GRIDS) > _GRID_CACHE:
+    while len(_GRIDS) > 1 and sum(g.nbytes for g in _GRIDS.values()) > _GRID_CACHE_BYTES:
         _GRIDS.popitem(last=False)
     return grid
 
@@ -172,32 +269,53 @@ def _candidates(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Broad phase: every ray/triangle pair ``(ray (P,), triangle (P,))`` whose bounding
     sphere ``(centre (M, 3), radius (M,))`` comes within reach of the ray segment
-    (``_near_segment``), for any number ``M`` of triangles (all posed frames at once).
+    (:func:`_near_segment`), for any number ``M`` of triangles (all posed frames at once),
+    ordered by triangle, then by the rays' order in the triangle's grid cell.
 
-    A triangle is looked up in the grid cell of its centre: when its sphere comes within
-    ``r`` of a segment, the centre is within ``r`` of it and the cell's centre within
-    ``r + h sqrt(3)/2``, so the cell's rays within that distance (rounded up to whole
-    millimetres) are all the rays the triangle can reach."""
-    finite = torch.isfinite(centre).all(1) & torch.isfinite(radius)
-    tri = torch.nonzero(finite)[:, 0]
-    if len(tri) == 0:
-        return tri, tri
+    A triangle is looked up in the grid cell of its centre ``c``: when its sphere comes
+    within ``r`` of a segment, the cell's centre ``g`` is within ``r + |c - g|`` of it, so
+    the cell's rays within that distance (rounded up to whole millimetres, never beyond the
+    grid's reach) are all the rays the triangle can reach. The grid is asked for the
+    reach of the worst case ``|c - g| = h sqrt(3) / 2``, so one grid serves a whole hand;
+    each triangle then reads only the rays its own offset needs (~40 % fewer pairs than
+    the worst case). A cell whose nearest ray is beyond that is skipped without a search."""
+    centre_all, radius_all = centre, radius
+    # A finite radius needs finite corners minus a finite centre, so it alone decides.
+    finite = torch.isfinite(radius)
+    if bool(finite.all()):
+        tri = None  # the common case: no copy of the triangles
+    else:
+        tri = torch.nonzero(finite)[:, 0]
+        if len(tri) == 0:
+            return tri, tri
+        centre, radius = centre[tri], radius[tri]
     on = o.numpy(), d.numpy()
     slack = _SPHERE_MARGIN + _grid_cell(*on, max_dist) * 3**0.5 / 2 + _GRID_SLACK
-    mm = torch.ceil((radius[tri] + slack) / 1e-3).long()  # (M',) reach, whole mm
-    grid = _ray_grid(*on, max_dist, int(mm.max()))
-    idx = torch.floor((centre[tri] - grid.lo) / grid.cell)
+    # ceil is monotone: the largest triangle's reach is the largest of the reaches
+    grid = _ray_grid(*on, max_dist, int(torch.ceil((radius.max() + slack) / 1e-3)))
+    u = (centre - grid.lo) / grid.cell  # (M, 3) position in cells
+    idx = torch.floor(u)
     inside = ((idx >= 0) & (idx < torch.tensor(grid.dims))).all(1)
-    tri, mm, idx = tri[inside], mm[inside], idx[inside].long()
+    sel = None if bool(inside.all()) else torch.nonzero(inside)[:, 0]
+    if sel is not None:
+        u, radius, idx = u[sel], radius[sel], idx[sel]
+        tri = sel if tri is None else tri[sel]
+    # |c - g| (m); its rounding (~1e-16 m) is far inside _GRID_SLACK
+    off = (u - idx).sub_(0.5).norm(dim=-1).mul_(grid.cell)
+    mm = torch.ceil((radius + off + (_SPHERE_MARGIN + _GRID_SLACK)) / 1e-3).long()
+    mm = mm.clamp_(max=grid.reach_mm)
+    idx = idx.long()
     lin = (idx[:, 0] * grid.dims[1] + idx[:, 1]) * grid.dims[2] + idx[:, 2]
+    busy = torch.nonzero(grid.near[lin] <= mm)[:, 0]  # cells with a ray within reach
+    lin, mm = lin[busy], mm[busy]
+    tri = busy if tri is None else tri[busy]
     first = grid.start[lin]
-    busy = torch.nonzero(grid.start[lin + 1] > first)[:, 0]  # cells that list any ray
-    tri, mm, lin, first = tri[busy], mm[busy], lin[busy], first[busy]
     count = torch.searchsorted(grid.key, lin * (grid.reach_mm + 1) + mm, right=True) - first
     tri = torch.repeat_interleave(tri, count)
     offset = torch.repeat_interleave(first - (torch.cumsum(count, 0) - count), count)
     ray = grid.rays[offset + torch.arange(len(tri))]
-    keep = _near_segment(o[ray], d[ray], centre[tri], radius[tri], max_dist)
+    planes = (x.T.contiguous() for x in (o, d, centre_all))
+    keep = _near_segment(*planes, radius_all, ray, tri, max_dist)
     return ray[keep], tri[keep]
 
 
@@ -285,12 +403,15 @@ def ray_mesh_hits_batch(
             where="ray_mesh_hits_batch",
         )
     nb, n, nf = vt.shape[0], len(o), len(f)
-    v0, v1, v2 = (vt[:, f[:, k]].reshape(-1, 3) for k in range(3))  # (B*F, 3)
+    # (B*F, 3) corners; index_select copies the rows as indexing does, ~2x faster
+    v0, v1, v2 = (vt.index_select(1, f[:, k].contiguous()).reshape(-1, 3) for k in range(3))
     centre = (v0 + v1 + v2) / 3
-    radius = torch.stack([(x - centre).norm(dim=-1) for x in (v0, v1, v2)]).amax(0)
+    radius = torch.maximum((v0 - centre).norm(dim=-1), (v1 - centre).norm(dim=-1))
+    radius = torch.maximum(radius, (v2 - centre).norm(dim=-1))  # (B*F,)
     ray, tri = _candidates(o, d, centre, radius, max_dist)
-    e1, e2 = (v1 - v0)[tri], (v2 - v0)[tri]
-    t, u, v, ok = _moller_trumbore(o[ray], d[ray], v0[tri], e1, e2)
+    a = v0[tri]  # edges of the candidate pairs only (the same values as of all, indexed)
+    e1, e2 = v1[tri] - a, v2[tri] - a
+    t, u, v, ok = _moller_trumbore(o[ray], d[ray], a, e1, e2)
     ok &= t.abs() <= max_dist
     # Faces are wound outwards, so d . (e1 x e2) > 0 means the ray leaves the hand there.
     leaving = (d[ray] * torch.linalg.cross(e1, e2, dim=-1)).sum(-1) > 0

@@ -122,11 +122,60 @@ def hand_fields(
     return out
 
 
+_FAR_MARGIN = 1e-6  # m; pads the far-frame bound against the rounding of the frame change
+_PROBE_STRIDE = 8  # interaction_frames measures every 8th hand vertex first
+
+
+def far_frames(library: ObjectLibrary, seq: Sequence, world: np.ndarray, dist: float) -> np.ndarray:
+    """(T,) bool: frames whose hand vertices ``world (T, V, 3)`` (m) are all surely farther
+    than ``dist`` from the object by :func:`common.signed_distance`'s measure, so that
+    measuring them can be skipped.
+
+    Beyond the object's fine distance grid that measure is the point's distance to the
+    object's bounding box (``far="bound"``), and the grid's nodes reach at most
+    ``padding + spacing`` beyond the box on each axis: a point farther than
+    ``sqrt(3) (padding + spacing)`` from the box is beyond the grid, and its value is that
+    distance. The bound per frame: the distance between the hand's bounding sphere (centre
+    and half-diagonal of its box) and the object box's sphere, in the world frame."""
+    field = library.field(seq.obj_name)
+    v = np.asarray(field.mesh.vertices, np.float64)  # every vertex: the grid's box too
+    lo, hi = v.min(0), v.max(0)
+    R, t = seq.object_rotations(), np.asarray(seq.object["transl"], float)
+    centre = (lo + hi) / 2 @ R + t  # (T, 3) world = local @ R_t + t_t
+    # per coordinate plane: ~8x faster than reducing (T, V, 3) over its middle axis
+    a = np.stack([world[..., k].min(1) for k in range(3)], 1)  # (T, 3)
+    b = np.stack([world[..., k].max(1) for k in range(3)], 1)
+    gap = (
+        np.linalg.norm((a + b) / 2 - centre, axis=1)
+        - np.linalg.norm(b - a, axis=1) / 2
+        - np.linalg.norm(hi - lo) / 2
+    )  # (T,) lower bound of every hand point's distance to the object's box
+    beyond = 3**0.5 * (field.padding + field.spacing)
+    return gap > max(dist, beyond) + _FAR_MARGIN
+
+
 def interaction_frames(
     library: ObjectLibrary, seq: Sequence, side: str, params: dict, dist: float
 ) -> np.ndarray:
-    """(T,) bool: the hand comes within ``dist`` (m) of the object."""
-    return (U.signed_distance(library, seq, U.seq_vertices(seq, side, params)) <= dist).any(1)
+    """(T,) bool: the hand comes within ``dist`` (m) of the object.
+
+    The same mask as measuring every vertex of every frame (the measure is per point),
+    for less: frames that :func:`far_frames` proves far (about half of a sequence) are not
+    measured, and the others first measure every ``_PROBE_STRIDE``-th vertex; only the
+    frames none of those decide measure the rest."""
+    world = U.seq_vertices(seq, side, params)  # (T, V, 3)
+    out = np.zeros(len(world), bool)
+    frames = np.flatnonzero(~far_frames(library, seq, world, dist))
+    probe = np.zeros(world.shape[1], bool)
+    probe[::_PROBE_STRIDE] = True
+    for ids in np.flatnonzero(probe), np.flatnonzero(~probe):
+        if len(frames) == 0 or len(ids) == 0:
+            break
+        d = U.signed_distance(library, seq, world[np.ix_(frames, ids)], frames)
+        near = (d <= dist).any(1)
+        out[frames[near]] = True
+        frames = frames[~near]
+    return out
 
 
 def windows_of_run(run: np.ndarray, length: int) -> list[np.ndarray]:
