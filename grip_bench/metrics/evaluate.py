@@ -40,7 +40,7 @@ import numpy as np
 
 from ..core import constants as C
 from ..core.errors import InputError
-from ..core.frames import SIDES
+from ..core.frames import SIDES, world_to_object
 from ..core.vec import norm3
 from ..results.schema import ResultRow
 from .contact import (
@@ -55,7 +55,7 @@ from .contact import (
     strict_contact,
 )
 from .intersection import FailureCounter, intersection_volume_batch
-from .jitter import acceleration, acceleration_error_of
+from .jitter import acceleration, acceleration_error_against
 from .penetration import penetration_depth_from_sdf
 from .pose import mpjpe
 from .registry import METRICS, metric
@@ -161,7 +161,9 @@ def signed_distances(field: DistanceField, local: np.ndarray) -> np.ndarray:
 @dataclass
 class HandTrack:
     """One hand of one sequence (prediction or GT), posed: world vertices (T, V, 3), keypoints
-    (T, 21, 3), object-frame vertices (T, V, 3) and signed distances (T, V), metres."""
+    (T, 21, 3), object-frame vertices (T, V, 3) and signed distances (T, V), metres. A track
+    measured on some frames only (``hand_track(..., frames=)``) has NaN ``local`` and ``sd``
+    rows elsewhere."""
 
     verts: np.ndarray
     joints: np.ndarray
@@ -175,11 +177,26 @@ def hand_track(
     poser: ProceduralPoser | MANOPoser,
     library: ObjectLibrary,
     field: DistanceField,
+    frames: np.ndarray | None = None,
 ) -> HandTrack:
-    """Pose ``side`` of ``seq`` and measure it against the sequence's own object trajectory."""
+    """Pose ``side`` of ``seq`` and measure it against the sequence's own object trajectory.
+
+    frames: optional (T,) bool: the frames whose object-frame vertices and signed distances
+    are computed (NaN rows elsewhere; each frame's values are those of the whole-sequence
+    computation bit for bit, as both are per point); None: every frame.
+    """
     verts, joints = poser.pose(side, seq.hand_params(side))
-    local = library.world_to_object(seq, verts)
-    return HandTrack(verts, joints, local, signed_distances(field, local))
+    if frames is None:
+        local = library.world_to_object(seq, verts)
+        return HandTrack(verts, joints, local, signed_distances(field, local))
+    idx = np.flatnonzero(frames)
+    local = np.full(verts.shape, np.nan)
+    sd = np.full(verts.shape[:2], np.nan)
+    if len(idx):
+        local[idx] = world_to_object(verts[idx], seq.object_rotations()[idx],
+                                     np.asarray(seq.object["transl"], float)[idx])
+        sd[idx] = signed_distances(field, local[idx])
+    return HandTrack(verts, joints, local, sd)
 
 
 # Posed ground-truth hands of this process (``gt_track``). A run scores ~30 prediction sets
@@ -263,16 +280,28 @@ class SequencePair:
         self._shared: dict[str, np.ndarray] = {}  # per-hand arrays two metrics read
 
     def track(self, who: str, side: str) -> HandTrack:
-        """``who`` is "pred" or "gt"."""
+        """``who`` is "pred" or "gt". The prediction's object-frame vertices and distances
+        are measured on :meth:`scored` frames only (NaN rows elsewhere: no metric reads
+        them; ~70 % of a SynthGRAB take's frames are neither grasp nor held frames)."""
         key = (who, side)
         if key not in self._tracks:
             if who == "gt" and self.gt_cache:
                 self._tracks[key] = gt_track(self.gt, side, self.poser, self.library,
                                              self.field, self.options.model_path)
+            elif who == "pred":
+                self._tracks[key] = hand_track(self.pred, side, self.poser, self.library,
+                                               self.field, frames=self.scored(side))
             else:
-                seq = self.pred if who == "pred" else self.gt
-                self._tracks[key] = hand_track(seq, side, self.poser, self.library, self.field)
+                self._tracks[key] = hand_track(self.gt, side, self.poser, self.library,
+                                               self.field)
         return self._tracks[key]
+
+    def scored(self, side: str) -> np.ndarray:
+        """Frames (T,) bool where a metric reads the prediction's object-frame vertices or
+        signed distances: the GT's grasp frames (contact statistics) and held frames (every
+        contact, penetration, drift and IV metric; within the grasp frames by definition,
+        included for safety). Every other metric reads world vertices and joints."""
+        return self.grasp(side) | self.held(side)
 
     def grasp(self, side: str) -> np.ndarray:
         """Grasp frames (T,) bool of ``side``: its GT mesh within 4.5 mm of the object."""
@@ -293,7 +322,7 @@ class SequencePair:
             g = np.asarray(self.track("gt", side).verts, dtype=np.float64)
             if p.shape != g.shape:
                 raise InputError(f"hand vertices {p.shape} against {g.shape}", "vertices")
-            self._shared[key] = norm3(p - g)
+            self._shared[key] = _blocked_norm3_diff(p, g)
         return self._shared[key]
 
     def accel(self, side: str) -> np.ndarray:
@@ -324,6 +353,37 @@ class SequencePair:
     @cached_property
     def n_frames(self) -> int:
         return self.gt.n_frames
+
+    @cached_property
+    def pred_rotations(self) -> np.ndarray:
+        """The prediction's object rotations (T, 3, 3) (row-vector convention), once for all
+        the simulated frames."""
+        return self.pred.object_rotations()
+
+    @cached_property
+    def obj_pieces(self) -> list[np.ndarray]:
+        """The object's convex pieces (``physics.convex_decomposition``), looked up once for
+        all the simulated frames (the lookup hashes the whole mesh)."""
+        from .physics import convex_decomposition
+
+        return convex_decomposition(self.mesh)
+
+
+def _blocked_norm3_diff(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """``norm3(p - g)`` (T, V) of float64 (T, V, 3) arrays, a block of frames at a time: the
+    same values (both are elementwise), without a whole (T, V, 3) difference in memory."""
+    if p.ndim < 2 or not len(p):
+        return norm3(p - g)
+    out = np.empty(p.shape[:-1])
+    step = max(1, _BLOCK_VALUES // max(1, p[0].size))
+    buf = np.empty((min(step, len(p)), *p.shape[1:]))
+    for s in range(0, len(p), step):
+        e = min(len(p), s + step)
+        out[s:e] = norm3(np.subtract(p[s:e], g[s:e], out=buf[: e - s]))
+    return out
+
+
+_BLOCK_VALUES = 1 << 16  # float64 values per block (512 KB): a block stays in cache
 
 
 # ------------------------------------------------------------------ metrics
@@ -473,16 +533,16 @@ def _bone_ids(poser: ProceduralPoser | MANOPoser, side: str, n_verts: int) -> np
 def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult:
     """MuJoCo stability of frame ``t`` with every predicted hand held there (GT mask),
     cached per (frame, protocol) so a bimanual frame is simulated once for both hands."""
-    from .physics import convex_decomposition, stability
+    from .physics import stability
 
     key = (t, protocol)
     if key not in pair._sims:
         sides = [s for s in pair.options.sides if pair.held(s)[t]]
         hands = [_hand_mesh(pair, s, t) for s in sides]
-        R = pair.pred.object_rotations()[t]
+        R = pair.pred_rotations[t]
         pose = (R.T, np.asarray(pair.pred.object["transl"][t], float))  # world = R^T local + t
         res = stability(hands, pair.mesh, protocol, obj_pose=pose, up=pair.options.up,
-                        obj_pieces=convex_decomposition(pair.mesh))
+                        obj_pieces=pair.obj_pieces)
         if res.diverged:
             pair.failures.add(f"simulation diverged ({protocol})")
         pair._sims[key] = res
@@ -542,8 +602,8 @@ def m_accel_err(pair: SequencePair, side: str) -> Measured:
     if pair.n_frames < 3:
         return Measured(np.zeros(0, int), np.zeros(0))
     # = acceleration_error(pred verts, gt verts, fps), the prediction's half shared with jitter
-    per = acceleration_error_of(pair.accel(side),
-                                acceleration(pair.track("gt", side).verts, pair.gt.fps))
+    per = acceleration_error_against(pair.accel(side), pair.track("gt", side).verts,
+                                     pair.gt.fps)
     return Measured(np.arange(1, 1 + len(per)), per)
 
 

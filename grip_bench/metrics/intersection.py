@@ -11,7 +11,7 @@ float32 rounding nor far-from-origin coordinates affect the volume.
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, OrderedDict
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -109,13 +109,34 @@ def _aabb(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _disjoint(va: np.ndarray, vb: np.ndarray) -> bool:
     """Early-out: bounding boxes, then bounding spheres (about the box centres), do not meet."""
+    return _disjoint_from(va, _Bounds(vb))
+
+
+class _Bounds:
+    """The box ``lo, hi`` (3,) of points (N, 3) and, when first asked, the sphere about the
+    box centre ``c`` holding them (radius ``r``): one mesh's side of ``_disjoint``, computed
+    once for a mesh tested against many others (the object of ``intersection_volume_batch``)."""
+
+    def __init__(self, v: np.ndarray):
+        self.v = v
+        self.lo, self.hi = _aabb(v)
+        self._sphere: tuple[np.ndarray, float] | None = None
+
+    def sphere(self) -> tuple[np.ndarray, float]:
+        if self._sphere is None:
+            c = 0.5 * (self.lo + self.hi)
+            self._sphere = c, np.sqrt(((self.v - c) ** 2).sum(axis=1).max())
+        return self._sphere
+
+
+def _disjoint_from(va: np.ndarray, b: _Bounds) -> bool:
+    """``_disjoint(va, b.v)``: the same tests on the same values, ``b``'s side computed once."""
     lo_a, hi_a = _aabb(va)
-    lo_b, hi_b = _aabb(vb)
-    if np.any(lo_a > hi_b) or np.any(lo_b > hi_a):
+    if np.any(lo_a > b.hi) or np.any(b.lo > hi_a):
         return True
-    ca, cb = 0.5 * (lo_a + hi_a), 0.5 * (lo_b + hi_b)
+    ca = 0.5 * (lo_a + hi_a)
     ra = np.sqrt(((va - ca) ** 2).sum(axis=1).max())
-    rb = np.sqrt(((vb - cb) ** 2).sum(axis=1).max())
+    cb, rb = b.sphere()
     return bool(np.linalg.norm(ca - cb) > ra + rb)
 
 
@@ -180,19 +201,48 @@ def intersection_volume_batch(
         return out
     vo = np.asarray(obj.vertices, np.float64)
     origin = 0.5 * (vo.min(axis=0) + vo.max(axis=0))
-    man_obj = to_manifold(vo, obj.faces, origin)
+    man_obj = _object_manifold(vo, obj.faces, origin)
     if man_obj is None:
         out[:] = _fail(failures, "not a manifold", v.shape[0])
         return out
     hands = _PosedManifolds(hand_faces, origin)
+    bounds = _Bounds(vo)
     for t, vt in enumerate(v):
-        if _disjoint(vt, vo):
+        if _disjoint_from(vt, bounds):
             continue
         man_hand = hands.at(vt)
         out[t] = (
             _fail(failures, "not a manifold") if man_hand is None else _volume(man_hand, man_obj)
         )
     return out
+
+
+# Objects' Manifolds by content (vertices, faces, origin), for the next hand of the same
+# object in this process: building one from a mesh costs ~10 ms per (sequence, hand), and a
+# Manifold is immutable (booleans return new ones), so a reused one gives the same volumes.
+_OBJECT_MANIFOLDS: OrderedDict[bytes, object] = OrderedDict()
+_OBJECT_MANIFOLDS_SIZE = 8
+
+
+def _object_manifold(v: np.ndarray, faces: np.ndarray, origin: np.ndarray
+                     ) -> manifold3d.Manifold | None:
+    """``to_manifold(v, faces, origin)``, remembered by content (the last few objects)."""
+    import hashlib
+
+    f = np.ascontiguousarray(faces)
+    h = hashlib.sha1()
+    for a in (np.ascontiguousarray(v, np.float64), f, np.ascontiguousarray(origin, np.float64)):
+        h.update(repr((a.dtype.str, a.shape)).encode())
+        h.update(a.tobytes())
+    key = h.digest()
+    if key in _OBJECT_MANIFOLDS:
+        _OBJECT_MANIFOLDS.move_to_end(key)
+        return _OBJECT_MANIFOLDS[key]
+    man = to_manifold(v, faces, origin)
+    _OBJECT_MANIFOLDS[key] = man
+    if len(_OBJECT_MANIFOLDS) > _OBJECT_MANIFOLDS_SIZE:
+        _OBJECT_MANIFOLDS.popitem(last=False)
+    return man
 
 
 class _PosedManifolds:
