@@ -137,21 +137,33 @@ def release_and_retreat(
     sc: Script, cast: Cast, sides: Sequence[str], on_table: bool = True
 ) -> None:
     """Open the fingers, back the wrist off along the approach, return to rest."""
-    obj_R, obj_p = sc.obj_pose
-    a, b = sc.phase("release", 0.17)  # a quick let-go: few frames of a half-open hand on the object
-    for s in sides:
-        sc.shape(s, a, b, cast.grasps[s].open_pose)
-    a, b = sc.phase("backoff", 0.45)
-    for s in sides:
-        g = cast.grasps[s]
-        Rw, pw = wrist_of(obj_R, obj_p, g)
-        sc.move(s, a, b, pw + BACKOFF_DIST * (obj_R @ g.approach) + np.array([0.0, 0.03, 0.0]), Rw,
-                ease="leave")
-        sc.shape(s, (a + b) // 2, b, sc.relaxed_end[s])  # relax once clear of object and table
+    let_go(sc, sides, cast.grasps, *sc.obj_pose, ("release", "backoff"), 0.45, BACKOFF_DIST,
+           0.03, relax=True)
     a, b = sc.phase("retreat", 1.0)
     for s in sides:
         via = _over_table(cast, sc.wrist[s].last[0], sc.rest[s][0]) if on_table else None
         sc.move(s, a, b, *sc.rest[s], via)
+
+
+def let_go(sc: Script, sides: Sequence[str], grasps: dict, obj_R: np.ndarray,
+           obj_p: np.ndarray, phases: tuple[str, str], backoff_s: float, dist: float,
+           rise: float, relax: bool) -> None:
+    """Open each hand to its grasp's pre-shape (phase ``phases[0]``, 0.17 s: a quick let-go,
+    few frames of a half-open hand on the object), then back the wrist off ``dist`` (m)
+    along the grasp's approach and ``rise`` (m) up from the object at ``obj_R, obj_p``
+    (phase ``phases[1]``, ``backoff_s``); ``relax``: the fingers relax over the second half
+    of the backoff, once clear of object and table."""
+    a, b = sc.phase(phases[0], 0.17)
+    for s in sides:
+        sc.shape(s, a, b, grasps[s].open_pose)
+    a, b = sc.phase(phases[1], backoff_s)
+    for s in sides:
+        g = grasps[s]
+        Rw, pw = wrist_of(obj_R, obj_p, g)
+        sc.move(s, a, b, pw + dist * (obj_R @ g.approach) + np.array([0.0, rise, 0.0]), Rw,
+                ease="leave")
+        if relax:
+            sc.shape(s, (a + b) // 2, b, sc.relaxed_end[s])
 
 
 def attach(sc: Script, side: str, carrier: bool) -> None:
@@ -422,15 +434,8 @@ def _regrasp(sc: Script, cast: Cast) -> None:
     _carry(sc, "regrasp_place", 0.6, p0, R0)
     for s in sides:
         detach(sc, cast, s, rg.grasps[s])
-    a, b = sc.phase("regrasp_release", 0.17)
-    for s in sides:
-        sc.shape(s, a, b, rg.grasps[s].open_pose)
-    a, b = sc.phase("regrasp_backoff", 0.35)
-    for s in sides:
-        g = rg.grasps[s]
-        Rw, pw = wrist_of(R0, p0, g)
-        sc.move(s, a, b, pw + rg.backoff * (R0 @ g.approach) + np.array([0.0, 0.02, 0.0]), Rw,
-                ease="leave")
+    let_go(sc, sides, rg.grasps, R0, p0, ("regrasp_release", "regrasp_backoff"), 0.35,
+           rg.backoff, 0.02, relax=False)
 
 
 def in_air(cast: Cast, p: np.ndarray, margin: float = AIR_CLEARANCE) -> np.ndarray:
