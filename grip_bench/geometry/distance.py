@@ -33,6 +33,9 @@ __all__ = ["DistanceField", "grid_signed_distance_many"]
 _CHUNK = 1 << 18  # points per query chunk: bounds the temporaries of huge batched calls
 _BOX_MARGIN = 1e-3  # m; exact queries this far outside the mesh's bounding box skip the sign test
 _TILE = 64  # points per row of the vectorised grid transform (_read32)
+# nodes per slab of the grid build (_grid_arrays): its float64 temporaries, ~0.3 kB a node at
+# most, scale with a slab rather than the grid (a memory budget, not a protocol constant)
+_SLAB_NODES = 1 << 19
 _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
 
 
@@ -163,6 +166,13 @@ class DistanceField:
         p, lead, back = _to_numpy(points)
         return back(self._exact_values(p).reshape(lead))
 
+    def exact_contacts(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Exact signed distances ``(N,)`` m, closest surface points ``(N, 3)`` and the
+        outward angle-weighted pseudonormals ``(N, 3)`` there (unit on faces; a sum of unit
+        normals on edges and vertices, so normalise before use) of points ``(N, 3)``."""
+        dist, closest, _, normal = self._exact(np.ascontiguousarray(points, np.float64))
+        return dist, closest, normal
+
     def closest_points(
         self, points: np.ndarray | torch.Tensor
     ) -> tuple[np.ndarray | torch.Tensor, np.ndarray | torch.Tensor, np.ndarray | torch.Tensor]:
@@ -234,54 +244,128 @@ class DistanceField:
     def _grid_arrays(self) -> dict[str, np.ndarray]:
         """Exact values near the surface, coarse values beyond, and the unreliable-cell mask.
 
-        Values and gradients are returned as float32, the precision the grid is sampled in.
+        Values and gradients are returned as float32, the precision the grid is sampled in:
+        ``values (N,)``, ``grad (N, 3)`` (unit), ``unreliable (N,)`` bool, nodes in x-major
+        order. Built in slabs of ``_SLAB_NODES`` nodes along the first axis, so the float64
+        temporaries scale with a slab, not the grid; every node gets the same values as a
+        whole-grid build (each step is per node, or reads whole rows with one row of overlap).
         """
         h = self.spacing
         lo = self._V.min(0) - self.padding
         n = np.ceil((self._V.max(0) + self.padding - lo) / h).astype(int) + 1
         self.origin, self.shape = lo, tuple(int(x) for x in n)
         band = constants.SDF_EXACT_DEPTH + h * math.sqrt(3.0)
-        nodes = self._node_coords(self.shape, lo, h)
+        n0, n1, n2 = self.shape
+        rows = max(1, _SLAB_NODES // (n1 * n2))
+        x = lo[0] + h * np.arange(n0)  # each row's x, as _node_coords computes it
+        coarse = self._coarse_grid()
+        values = np.empty(self.shape, np.float32)
+        grad = np.empty((*self.shape, 3), np.float32)
+        flags = np.zeros(self.shape, dtype=bool)
+        # window of built rows [w0, w0 + len): float64 values, band mask, near-node gradients;
+        # a slab's gradients read one row on each side, so two rows carry over to the next slab
+        win_v = np.empty((0, n1, n2))
+        win_near = np.empty((0, n1, n2), dtype=bool)
+        win_g = np.empty((0, n1, n2, 3))
+        w0 = 0
+        prev = None  # the float64 unit gradients and band mask of the row before the slab
+        for i0 in range(0, n0, rows):
+            i1 = min(i0 + rows, n0)
+            built = w0 + len(win_v)
+            if built < min(i1 + 1, n0):
+                v, near, g = self._band_rows(x[built : i1 + 1], band, coarse)
+                win_v = np.concatenate([win_v, v])
+                win_near = np.concatenate([win_near, near])
+                win_g = np.concatenate([win_g, g])
+            # np.gradient over the window: the slab's rows get the whole grid's central
+            # differences, and the grid's first/last rows (window ends) its one-sided ones
+            far_grad = np.gradient(win_v, h)
+            s = slice(i0 - w0, i1 - w0)
+            g = win_g[s].reshape(-1, 3)  # a view: the slab's rows of win_g are not read again
+            far = ~win_near[s].reshape(-1)
+            g[far] = np.stack([d[s] for d in far_grad], -1).reshape(-1, 3)[far]
+            g /= np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+            g = g.reshape(i1 - i0, n1, n2, 3)
+            values[i0:i1] = win_v[s]
+            grad[i0:i1] = g
+            # kink cells of rows [c0, i1 - 1): their corners lie in rows [c0, i1)
+            block_g, block_near = g, win_near[s]
+            if prev is not None:
+                block_g = np.concatenate([prev[0], g])
+                block_near = np.concatenate([prev[1], block_near])
+            c0 = i1 - len(block_g)
+            flags[c0 : i1 - 1, :-1, :-1] = self._kink_cells(block_g, block_near)
+            prev = (g[-1:].copy(), win_near[i1 - 1 - w0 : i1 - w0].copy())
+            keep = max(i1 - 1, 0) - w0  # rows before i1 - 1 are no longer read
+            win_v, win_near, win_g = win_v[keep:], win_near[keep:], win_g[keep:]
+            w0 += keep
+        return {"origin": np.asarray(lo, np.float64), "shape": np.array(self.shape, np.int64),
+                "values": values.reshape(-1), "grad": grad.reshape(-1, 3),
+                "unreliable": flags.reshape(-1)}
+
+    def _band_rows(
+        self, x: np.ndarray, band: float, coarse: tuple[np.ndarray, tuple[int, int, int]]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Grid rows at x-coordinates ``x (m,)`` (m): float64 values ``(m, n1, n2)`` (exact
+        within ``band``, coarse-filled beyond), the within-band mask ``(m, n1, n2)`` and the
+        within-band nodes' gradients ``(m, n1, n2, 3)`` (``(x - c) / d``, or the pseudonormal
+        on the surface; not yet normalised; zero beyond the band)."""
+        _, n1, n2 = self.shape
+        h, lo = self.spacing, self.origin
+        nodes = np.empty((len(x), n1, n2, 3))
+        nodes[..., 0] = x[:, None, None]
+        nodes[..., 1] = (lo[1] + h * np.arange(n1))[None, :, None]
+        nodes[..., 2] = (lo[2] + h * np.arange(n2))[None, None, :]
+        nodes = nodes.reshape(-1, 3)
         s, _, c, normal = igl.signed_distance(
             nodes, self._V, self._F,
             sign_type=igl.SignedDistanceType.SIGNED_DISTANCE_TYPE_PSEUDONORMAL,
             lower_bound=-band, upper_bound=band,
         )  # fmt: skip
         near = np.isfinite(s)
-        values = np.where(near, s, self._coarse_fill(nodes, band))
+        values = np.array(s, dtype=np.float64)
+        far = ~near
+        values[far] = self._coarse_fill(nodes[far], band, coarse)
         grad = np.zeros_like(nodes)
         off = nodes[near] - c[near]
-        dn = s[near][:, None]
+        dn = values[near][:, None]
         # (x - c) / d is the SDF gradient; on the surface itself use the pseudonormal
         grad[near] = np.where(np.abs(dn) > 1e-9, off / np.where(dn == 0, 1.0, dn), normal[near])
-        grid = values.reshape(self.shape)
-        far_grad = np.stack(np.gradient(grid, h), -1).reshape(-1, 3)
-        grad[~near] = far_grad[~near]
-        grad /= np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-12)
-        unreliable = self._kink_cells(grad.reshape(*self.shape, 3), near.reshape(self.shape))
-        return {"origin": np.asarray(lo, np.float64), "shape": np.array(self.shape, np.int64),
-                "values": values.astype(np.float32), "grad": grad.astype(np.float32),
-                "unreliable": unreliable}
+        m = len(x)
+        return values.reshape(m, n1, n2), near.reshape(m, n1, n2), grad.reshape(m, n1, n2, 3)
 
-    def _coarse_fill(self, nodes: np.ndarray, band: float) -> np.ndarray:
-        """Values for nodes beyond the exact band (|d| >= band).
-
-        Trilinear from an exact coarse grid.
-        """
+    def _coarse_grid(self) -> tuple[np.ndarray, tuple[int, int, int]]:
+        """Exact values ``(Nc,)`` (x-major) of the coarse grid (``SDF_COARSE_FACTOR`` x the
+        spacing, same origin) and its shape; queried in chunks of ``_CHUNK`` nodes."""
         factor = constants.SDF_COARSE_FACTOR
-        H = self.spacing * factor
         shape_c = tuple(int(np.ceil((s - 1) / factor)) + 1 for s in self.shape)
-        coarse_nodes = self._node_coords(shape_c, self.origin, H)
-        vals = self._exact(coarse_nodes)[0].reshape(shape_c)
+        coarse_nodes = self._node_coords(shape_c, self.origin, self.spacing * factor)
+        vals = np.concatenate([self._exact(coarse_nodes[i : i + _CHUNK])[0]
+                               for i in range(0, len(coarse_nodes), _CHUNK)])
+        return vals, shape_c
+
+    def _coarse_fill(
+        self, nodes: np.ndarray, band: float, coarse: tuple[np.ndarray, tuple[int, int, int]]
+    ) -> np.ndarray:
+        """Values ``(N,)`` for nodes ``(N, 3)`` beyond the exact band (|d| >= band).
+
+        Trilinear from the exact coarse grid ``coarse`` (``_coarse_grid``).
+        """
+        vals, shape_c = coarse
+        H = self.spacing * constants.SDF_COARSE_FACTOR
         u = (nodes - self.origin) / H
         i = np.clip(np.floor(u), 0, np.array(shape_c) - 2)
         strides = np.array([shape_c[1] * shape_c[2], shape_c[2], 1])
         base = (i * strides).sum(1).astype(np.intp)
-        out = _trilinear(vals.ravel(), base, u - i, _CORNERS @ strides)
+        out = _trilinear(vals, base, u - i, _CORNERS @ strides)
         return np.where(out < 0, -1.0, 1.0) * np.maximum(np.abs(out), band)
 
     def _kink_cells(self, grad: np.ndarray, near: np.ndarray) -> np.ndarray:
-        """Cells (indexed by their lowest corner) whose corner gradients spread too much.
+        """Cells whose corner gradients spread too much, in a block of ``m`` grid rows.
+
+        ``grad (m, n1, n2, 3)`` float64 unit node gradients, ``near (m, n1, n2)`` the
+        within-band mask; returns the flags ``(m - 1, n1 - 1, n2 - 1)`` of the cells with
+        their lowest corner in the block's rows ``0 .. m - 2``.
 
         A cell whose gradients differ by ``dg`` holds a trilinear error of about
         ``spacing * dg / 4``; cells where that exceeds ``SDF_KINK_TOL`` are sent to the
@@ -301,9 +385,7 @@ class DistanceField:
                 i : i + near.shape[0] - 1, j : j + near.shape[1] - 1, k : k + near.shape[2] - 1
             ]
         spread = np.linalg.norm(gmax - gmin, axis=-1)
-        flags = np.zeros(self.shape, dtype=bool)
-        flags[:-1, :-1, :-1] = all_near & (spread > limit)
-        return flags.ravel()
+        return all_near & (spread > limit)
 
     def _to_torch_volumes(self, vol: np.ndarray, flags: np.ndarray) -> None:
         """grid_sample layouts: the ``(1, 1, z, y, x)`` value volume (from ``_vol_layout``) and
@@ -584,12 +666,13 @@ class DistanceField:
 
 def _vol_layout(values: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
     """Node values ``(N,)`` (x-major) as the contiguous float32 ``(z, y, x)`` grid_sample volume."""
-    return values.reshape(shape).astype(np.float32).T.copy()
+    return values.reshape(shape).astype(np.float32, copy=False).T.copy()
 
 
 def _gvol_layout(grad: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
     """Node gradients ``(N, 3)`` as the contiguous float32 ``(3, z, y, x)`` grid_sample volume."""
-    return np.ascontiguousarray(grad.reshape(*shape, 3).astype(np.float32).transpose(3, 2, 1, 0))
+    g = grad.reshape(*shape, 3).astype(np.float32, copy=False)  # no copy of float32 input
+    return np.ascontiguousarray(g.transpose(3, 2, 1, 0))
 
 
 def _grid_entry_ok(a: dict) -> bool:
