@@ -268,6 +268,27 @@ def log_sensitivity_gate(st: RunState) -> None:
         st.log(f"  {'PASS' if ok else 'FAIL'}: {name} ({got})")
 
 
+def log_table_gates(st: RunState) -> None:
+    """The sanity gates of the tables that declare some (``[[gates]]``), as printed under
+    each table, in the run's log (and on stderr)."""
+    from ..report.tables import TABLES, compute_table
+    from ..results.schema import read_results
+
+    path = st.cfg.out / "results.csv"
+    specs = [spec for spec in TABLES if spec.gates]
+    if not specs or not path.is_file():
+        return
+    results, opts = read_results(path), st.cfg.report_options()
+    for spec in specs:
+        data = compute_table(spec, results, n_boot=opts["bootstrap_n"],
+                             seed=opts["bootstrap_seed"], averaging=opts["averaging"])
+        verdict = "PASS" if all(ok for _, ok, _ in data.gates) else "FAIL"
+        st.log(f"{spec.id}: sanity gates {verdict} "
+               f"({st.cfg.out / 'tables' / (spec.id + '.md')})")
+        for name, ok, got in data.gates:
+            st.log(f"  {'PASS' if ok else 'FAIL'}: {name} (measured {got})")
+
+
 def assemble_viewer(st: RunState) -> None:
     """``OUT/viewer/``: 3D pages of each leaderboard method's worst, median, ... clean test
     sequence (``[run] viewer_sequences``, default 2; 0 removes earlier pages) and their
@@ -329,6 +350,7 @@ def stage_report(st: RunState) -> None:
     pngs = [p.name for p in written if p.suffix == ".png"]
     st.log(f"figures: {', '.join(pngs)}" if pngs else "figures: none drawn (no figure data)")
     log_sensitivity_gate(st)
+    log_table_gates(st)
     st.stage_times["report"] = round(time.perf_counter() - t0, 3)
 
 

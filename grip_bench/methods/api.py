@@ -116,6 +116,10 @@ class MethodSpec:
     # a reference row (ground truth, the perturbed input, flat hand, mean pose): shown for
     # comparison, never ranked as a method
     reference: bool = False
+    # a trivial control (flat hand, mean pose at the input wrists): ranked like a method but
+    # never marked best, and a leaderboard column where it scores as well as the best method
+    # marks no best: that column cannot tell a method from a hand that does nothing
+    control: bool = False
     # bump when the method's outputs change for the same code digest (part of cache keys)
     version: str = "1"
 
@@ -178,3 +182,8 @@ def predicted_hands() -> dict[str, tuple[str, ...]]:
 def reference_rows() -> tuple[str, ...]:
     """Registered reference rows (``MethodSpec.reference``), in registration order."""
     return tuple(name for name in load_all().names() if METHODS.get(name).reference)
+
+
+def control_rows() -> tuple[str, ...]:
+    """Registered trivial controls (``MethodSpec.control``), in registration order."""
+    return tuple(name for name in load_all().names() if METHODS.get(name).control)

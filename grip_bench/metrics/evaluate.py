@@ -69,13 +69,16 @@ if TYPE_CHECKING:
     from ..geometry.distance import DistanceField
     from .physics import StabilityResult
 
-PHYSICS_METRICS = ("sim_stable", "sim_disp", "sim_disp_hold")
+# the metrics ``EvalOptions.physics`` switches off: MuJoCo's and the quasi-static hold check,
+# all on the same drawn held frames (``physics_frames``)
+PHYSICS_METRICS = ("hold_qs", "sim_stable", "sim_disp", "sim_disp_hold")
 
 
 @dataclass(frozen=True)
 class EvalOptions:
     """What to compute. ``metrics``: ids (None = every registered metric, registry order);
-    ``iv`` / ``physics``: switch the intersection volume / MuJoCo metrics off wholesale;
+    ``iv`` / ``physics``: switch the intersection volume / physics metrics (MuJoCo and the
+    quasi-static hold check: ``PHYSICS_METRICS``) off wholesale;
     ``max_physics_frames``: MuJoCo tests per sequence and hand; ``max_iv_frames``: exact
     intersection volumes per sequence and hand (evenly spaced grasp frames, 0 = every grasp
     frame; a sample of a smooth 30 fps motion); ``model_path``: MANO /
@@ -528,6 +531,43 @@ def _bone_ids(poser: ProceduralPoser | MANOPoser, side: str, n_verts: int) -> np
         ids = hand.layer.lbs_weights.argmax(dim=1)
     ids = np.asarray(ids.cpu().numpy() if hasattr(ids, "cpu") else ids)
     return np.concatenate([ids, np.zeros(n_verts - len(ids), ids.dtype)])
+
+
+def quasi_static_frame(pair: SequencePair, t: int) -> float:
+    """:func:`hold.can_hold` of frame ``t`` (1.0 or 0.0; NaN for a non-finite hand) with
+    every predicted hand the GT holds with there (both hands of a bimanual frame together),
+    against gravity ``-g up`` in the prediction's object frame; cached per frame so a
+    bimanual frame is checked once."""
+    from .hold import can_hold
+    from .physics import _object_inertia
+
+    key = (t, "quasi-static")
+    if key not in pair._sims:
+        sides = [s for s in pair.options.sides if pair.held(s)[t]]
+        local = np.concatenate([pair.track("pred", s).local[t] for s in sides])
+        sd = np.concatenate([pair.track("pred", s).sd[t] for s in sides])  # exact below 5 mm
+        if not np.isfinite(sd).all():
+            pair._sims[key] = float("nan")
+            return pair._sims[key]
+        touch = sd <= C.HOLD_TOUCH
+        # closest surface points and outward pseudonormals of the contacts only
+        _, closest, normal = pair.field.exact_contacts(local[touch])
+        mass, com, _ = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)
+        up = np.asarray(pair.options.up, np.float64)
+        load = mass * (-C.GRAVITY * up) @ pair.pred_rotations[t].T  # world -> object frame
+        pair._sims[key] = float(can_hold(-float(sd.min()), closest, normal, com, load))
+    return pair._sims[key]
+
+
+@metric("hold_qs", "Quasi-static hold", "%", 1e2, True, "held", 1,
+        "share of tested held frames whose hand vertices within 2 mm of the object (the "
+        "deepest <= 5 mm inside) admit contact forces in friction cones of mu = 1 that hold "
+        "the object against gravity with zero net torque (a linear programme, no force cap; "
+        "both hands of a bimanual frame together; [run] physics_frames held frames)")
+def m_hold_qs(pair: SequencePair, side: str) -> Measured:
+    idx = physics_frames(pair, side)
+    vals = [quasi_static_frame(pair, int(t)) for t in idx]
+    return Measured(idx, np.asarray(vals, dtype=np.float64))
 
 
 def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult:

@@ -20,10 +20,12 @@ Two tests share one scene per frame:
   the object moves < 1 mm in 5 steps of 1/240 s. Free fall alone moves it 2.55 mm
   (``SIM_FREE_FALL_5``), so the test tells "something supports it" from "nothing does".
 
-- **Force check** (quasi-static, no simulation): :func:`plan_forces` finds contact forces
-  inside linearised friction cones that cancel a load with zero torque (least largest
-  normal force, a linear programme); :func:`force_ratio` applies it to the hand vertices
-  within ``HOLD_TOUCH`` of the object. Measurements: docs/physics_hold.md.
+- **Force check** (quasi-static, no simulation; the reported ``hold_qs`` metric):
+  :func:`plan_forces` finds contact forces inside linearised friction cones that cancel a
+  load with zero torque (least largest normal force, a linear programme); :func:`can_hold`
+  applies it to the hand vertices within ``HOLD_TOUCH`` of the object (a hand more than
+  ``HOLD_MAX_DEPTH`` inside fails) and :func:`force_ratio` reports the force it needs.
+  Measurements: docs/physics_hold.md.
 
 Collision geometry is ``geometry.pieces``: the object's and the hand's pieces stick out at
 most ``PIECE_MAX_ERROR`` (measured), so a concave object stays concave and contacts start
@@ -581,6 +583,27 @@ def plan_forces(points: np.ndarray, normals: np.ndarray, com: np.ndarray, load: 
     if res.status != 0:
         return None
     return np.einsum("ke,kec->kc", res.x[:-1].reshape(k, edges), e)
+
+
+def can_hold(depth: float, closest: np.ndarray, normals: np.ndarray, com: np.ndarray,
+             load: np.ndarray, mu: float = C.SIM_FRICTION) -> bool:
+    """The quasi-static hold check of one frame, in the object's frame (the ``hold_qs``
+    metric): whether a hand whose contacts (its vertices within ``HOLD_TOUCH`` of the object,
+    outside or inside) lie at the object-surface points ``closest`` (K, 3) m with the
+    object's outward unit ``normals`` (K, 3) there can hold the object against ``load``
+    (3,) N (its weight ``m g`` in the object's frame) about its centre of mass ``com``
+    (3,) m with friction ``mu``: :func:`plan_forces` finds forces inside the contacts'
+    friction cones that cancel the load with zero torque.
+
+    Fails when ``depth`` (m, the deepest hand vertex's distance inside the object; <= 0 when
+    none is inside) exceeds ``HOLD_MAX_DEPTH``: a hand that deep is in the object, not
+    holding it (contacts all around would "hold" anything), and when there is no contact.
+    No force cap: it asks whether the contacts' geometry can hold the object (a hand
+    squeezes as hard as it needs), not whether a simulated hand does.
+    """
+    if depth > C.HOLD_MAX_DEPTH or len(closest) == 0:
+        return False
+    return plan_forces(closest, -np.asarray(normals), com, load, mu) is not None
 
 
 def force_ratio(hands: list[PosedHand], obj: trimesh.Trimesh,

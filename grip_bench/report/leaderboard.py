@@ -35,6 +35,7 @@ from .tables import (
     Column,
     Row,
     TableData,
+    best_values,
     default_metric_registry,
     mark_best,
 )
@@ -142,15 +143,20 @@ def _metric_order(lb: pd.DataFrame, registry: Registry[MetricSpec] | None) -> li
 def leaderboard_table(lb: pd.DataFrame,
                       metrics_registry: Registry[MetricSpec] | None = None,
                       title: str = "Leaderboard",
-                      reference_methods: Sequence[str] | None = None) -> TableData:
+                      reference_methods: Sequence[str] | None = None,
+                      control_methods: Sequence[str] | None = None) -> TableData:
     """The leaderboard as a wide table (methods x metric/hand) for the shared renderers.
 
     ``reference_methods``: rows never marked best (None: the registered methods whose
-    ``MethodSpec.reference`` is set)."""
-    if reference_methods is None:
-        from ..methods.api import reference_rows
+    ``MethodSpec.reference`` is set); ``control_methods``: trivial controls, ranked but
+    never marked best, and a column where one scores as well as the best method marks
+    none (None: the registered ``MethodSpec.control`` methods)."""
+    from ..methods.api import control_rows, reference_rows
 
+    if reference_methods is None:
         reference_methods = reference_rows()
+    if control_methods is None:
+        control_methods = control_rows()
     registry = metrics_registry if metrics_registry is not None else default_metric_registry()
     keys = [(m, h) for m in _metric_order(lb, registry)
             for h in sorted(set(lb.loc[lb["metric"] == m, "hand"]),
@@ -167,10 +173,18 @@ def leaderboard_table(lb: pd.DataFrame,
     for method in sorted(set(lb["method"])):
         cells = tuple(_lb_cell(by_key.get((method, m, h)), col)
                       for (m, h), col in zip(keys, columns, strict=True))
-        rows.append(Row(label=method, cells=cells, reference=method in reference_methods))
+        rows.append(Row(label=method, cells=cells, reference=method in reference_methods,
+                        control=method in control_methods))
+    _, tied = best_values(rows)
+    shown = [m for m in control_methods if m in set(lb["method"])]
     notes = ("Mean over sequences with a 95% bootstrap interval (resampling sequences within "
              "each object, seeded).",
              f"Reference rows ({', '.join(reference_methods)}) are never marked best.",
+             *([f"Controls ({', '.join(shown)}: the input wrists with fixed fingers) are "
+                "ranked but never marked best."] if shown else []),
+             *([f"No best marked in {_column_names(columns, tied)}: a control scores as well "
+                "as the best method there, so the column does not rank methods on this "
+                "data."] if tied else []),
              "– : no value (every sequence NaN, or a hand the method does not predict: "
              "single-hand models return the other hand as given).",
              "GRIP's ablation variants are compared in Tables 2 and 4 (right) and the physics "
@@ -180,6 +194,12 @@ def leaderboard_table(lb: pd.DataFrame,
                      description="every method, metric and hand on the clean test runs",
                      row_header="Method", columns=tuple(columns),
                      rows=tuple(mark_best(rows)), notes=notes)
+
+
+def _column_names(columns: Sequence[Column], keys: set) -> str:
+    """'Contact drift R-Hand, Jitter R-Hand' for the (column index, metric) ``keys``."""
+    return ", ".join(f"{columns[j].group} {columns[j].label}".strip()
+                     for j in sorted({j for j, _ in keys}))
 
 
 def _lb_cell(r: Any, col: Column) -> Cell:

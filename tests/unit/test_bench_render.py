@@ -98,6 +98,53 @@ def test_direction_and_reference_rows():
     assert "| Ground truth | 1.95 [1.95, 1.95] | 100.00 [100.00, 100.00] |" in md  # reference
 
 
+def _physics_frame(gt: float, flat: float, noisy: float) -> pd.DataFrame:
+    cells = {}
+    for m, pert, v in (("grip", "none", 40.0), ("grip-no-rnet", "none", 30.0),
+                       ("gt", "none", gt), ("flat-input", "none", flat),
+                       ("perturbed-input", "T0.01", noisy)):
+        for hand in ("right", "left"):
+            cells[(m, pert, "hold_qs", hand)] = v
+    return _frame(cells)
+
+
+def test_physics_sanity_gates_are_printed_under_the_table():
+    md = render_table("physics", _physics_frame(85.0, 2.0, 30.0), "md", n_boot=20)
+    assert "- Sanity gate PASS: Ground truth >= 80 % on Quasi-static hold (measured 85.0 %)" in md
+    assert ("- Sanity gate PASS: Flat hand (control) <= 5 % on Quasi-static hold "
+            "(measured 2.0 %)") in md
+    assert ("- Sanity gate PASS: GRAB-T 0.01 input (control) between Flat hand (control) and "
+            "Ground truth on Quasi-static hold (measured 30.0 against 2.0 and 85.0)") in md
+    assert "| RNet (GRIP) | **40.00** [40.00, 40.00] |" in md  # the controls are not ranked
+    data = compute_table(TABLES.get("physics"), _physics_frame(75.0, 6.0, 90.0), n_boot=20)
+    assert [ok for _, ok, _ in data.gates] == [False, False, False]
+    assert "- Sanity gate FAIL: Ground truth >= 80 % on Quasi-static hold (measured 75.0 %)" in \
+        render(data, "md")
+    missing = compute_table(TABLES.get("physics"), _physics_frame(85.0, 2.0, 30.0).query(
+        "method != 'perturbed-input'"), n_boot=20)
+    assert [ok for _, ok, _ in missing.gates] == [True, True, False]  # a missing cell fails
+
+
+def test_a_column_a_control_wins_marks_no_best():
+    from grip_bench.report.leaderboard import leaderboard, leaderboard_table
+
+    cells = {}
+    for m, drift, cc in (("grip", 0.3, 13.0), ("toch", 0.6, 3.8), ("flat-input", 0.0, 60.0),
+                         ("mean-pose", 0.0, 30.0), ("gt", 0.0, 0.0)):
+        cells[(m, "none", "contact_drift", "right")] = drift
+        cells[(m, "none", "cc", "right")] = cc
+    t = leaderboard_table(leaderboard(_frame(cells)))
+    best = {r.label: [c.best for c in r.cells] for r in t.rows}
+    j_cc, j_drift = [c.group for c in t.columns].index("Contact consistency"), \
+        [c.group for c in t.columns].index("Contact drift")
+    assert best["toch"][j_cc] and not best["grip"][j_cc]  # the controls lose: toch is best
+    assert not any(b[j_drift] for b in best.values())  # flat-input ties gt's 0: no best
+    assert not best["flat-input"][j_cc] and not best["mean-pose"][j_drift]
+    assert any("No best marked in Contact drift R-Hand: a control scores as well" in n
+               for n in t.notes)
+    assert any(n.startswith("Controls (flat-input, mean-pose") for n in t.notes)
+
+
 def _table3_frame():
     cells = {("perturbed-input", "T0.01", "mpvpe", "right"): 16.0,
              ("perturbed-input", "T0.01", "mpvpe", "left"): 18.0,

@@ -54,8 +54,13 @@ def test_table_shapes_match_the_paper():
     grasp = TABLES.get("table4_grasp")
     assert [r.reference for r in grasp.rows] == [False] * 5 + [True]
     phys = TABLES.get("physics")
-    assert [c.filters["metric"] for c in phys.columns] == ["sim_stable", "sim_disp",
+    assert [c.filters["metric"] for c in phys.columns] == ["hold_qs", "sim_stable", "sim_disp",
                                                            "sim_disp_hold"]
+    assert [r.reference for r in phys.rows] == [False] * 2 + [True] * 3  # gt and two controls
+    assert [(g.row, g.min, g.max, g.between) for g in phys.gates] == [
+        ("Ground truth", 80.0, None, None), ("Flat hand (control)", None, 5.0, None),
+        ("GRAB-T 0.01 input (control)", None, None,
+         ("Flat hand (control)", "Ground truth"))]
     assert TABLES.get("runtime").source == "runtime"
 
 
@@ -93,6 +98,16 @@ def _bad(change):
     (lambda d: d["defaults"].update(hands="x"), "t.toml: defaults", "unknown key 'hands'"),
     (lambda d: d.update(source="sql"), "t.toml", "'source' must be one of"),
     (lambda d: d.update(columns=[]), "t.toml: columns", "at least one column"),
+    (lambda d: d.update(gates=[{"row": "GRIP", "metric": "mpvpe"}]), "t.toml: gates[0]",
+     "exactly one of 'min', 'max', 'between'"),
+    (lambda d: d.update(gates=[{"row": "GT", "metric": "mpvpe", "min": 1.0}]),
+     "t.toml: gates[0]", "no row labelled 'GT'"),
+    (lambda d: d.update(gates=[{"row": "GRIP", "metric": "cc", "max": 1}]),
+     "t.toml: gates[0]", "no column of metric 'cc'"),
+    (lambda d: d.update(gates=[{"row": "GRIP", "metric": "mpvpe", "between": ["GRIP"]}]),
+     "t.toml: gates[0]", "'between' must name two rows"),
+    (lambda d: d.update(gates=[{"row": "GRIP", "metric": "mpvpe", "min": "80"}]),
+     "t.toml: gates[0]", "'min' must be float"),
 ])
 def test_validation_names_file_and_field(change, where, needle):
     with pytest.raises(InputError) as e:

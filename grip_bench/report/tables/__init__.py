@@ -35,6 +35,12 @@ File format (all keys listed in ``_TABLE_KEYS`` / ``_ROW_KEYS`` / ``_COLUMN_KEYS
     [[columns]] metric = "mpvpe"  hand = "right"  group = "MPVPE"
     [[rows]]    label = "0"  method = "grip-future0"
     compare_to = "grip"           # optional: seeded tables judge each row against this method
+    [[gates]]   row = "Ground truth"  metric = "hold_qs"  min = 80.0   # optional sanity gates:
+                row = "..." metric = "..." max = 5.0 | between = ["row a", "row b"]
+
+A gate is checked on the table's own cells (a row's value in the column of ``metric``,
+report units) and printed under the table (PASS / FAIL with the measured value): a metric
+shows there that it can rank (docs/contract.md, "Tables", "Sanity gates").
 """
 
 from __future__ import annotations
@@ -86,12 +92,14 @@ _TABLE_KEYS = {
     "compare_to": str,
     "rows": list,
     "columns": list,
+    "gates": list,
 }
 _TABLE_REQUIRED = ("id", "version", "title", "description", "rows", "columns")
 _ROW_KEYS = {"label": str, "group": str, "reference": bool, "mode": str,
              **{k: str for k in FILTER_KEYS}}
 _COLUMN_KEYS = {"label": str, "group": str, "decimals": int, "before": dict, "field": str,
                 "unit": str, "higher_is_better": bool, **{k: str for k in FILTER_KEYS}}
+_GATE_KEYS = {"row": str, "metric": str, "min": float, "max": float, "between": list}
 
 
 # --- specification --------------------------------------------------------------------------
@@ -121,6 +129,25 @@ class ColumnSpec:
 
 
 @dataclass(frozen=True)
+class GateSpec:
+    """A sanity gate on one cell: ``row``'s value (report units) in the column of ``metric``
+    is at least ``min``, at most ``max``, or strictly between the values of the two rows
+    ``between`` (in either order)."""
+
+    row: str
+    metric: str
+    min: float | None = None
+    max: float | None = None
+    between: tuple[str, str] | None = None
+
+    def describe(self, name: str, unit: str) -> str:
+        if self.between is not None:
+            return f"{self.row} between {self.between[0]} and {self.between[1]} on {name}"
+        bound = f">= {self.min:g}" if self.min is not None else f"<= {self.max:g}"
+        return f"{self.row} {bound} {unit} on {name}"
+
+
+@dataclass(frozen=True)
 class TableSpec:
     """A table definition loaded from ``grip_bench/report/tables/<id>.toml``."""
 
@@ -137,6 +164,7 @@ class TableSpec:
     order: int = 1000
     path: str = ""
     compare_to: str | None = None  # seeded tables: judge each row against this method's row
+    gates: tuple[GateSpec, ...] = ()
 
     def describe(self) -> str:
         """One line for ``grip-bench ls tables``."""
@@ -214,6 +242,30 @@ def _check_cells(spec: TableSpec, where: str) -> None:
                                      "column or [defaults])", where=cell)
 
 
+def _gate(obj: Any, where: str, rows: Sequence[RowSpec], columns: Sequence[ColumnSpec],
+          defaults: dict) -> GateSpec:
+    if isinstance(obj, dict):  # TOML writes 80 for 80.0: accept integers as bounds
+        obj = {k: float(v) if k in ("min", "max") and isinstance(v, int)
+               and not isinstance(v, bool) else v for k, v in obj.items()}
+    _check_keys(obj, _GATE_KEYS, where, required=("row", "metric"))
+    labels = [r.label for r in rows]
+    between = obj.get("between")
+    named = [obj["row"], *(between or [])]
+    bounds = [k for k in ("min", "max", "between") if k in obj]
+    if len(bounds) != 1:
+        raise InputError("a gate needs exactly one of 'min', 'max', 'between'", where=where)
+    if between is not None and (len(between) != 2 or not all(isinstance(b, str)
+                                                              for b in between)):
+        raise InputError("'between' must name two rows", where=where)
+    missing = [n for n in named if n not in labels]
+    if missing:
+        raise InputError(f"no row labelled {missing[0]!r}", where=where)
+    if not any({**defaults, **c.filters}.get("metric") == obj["metric"] for c in columns):
+        raise InputError(f"no column of metric {obj['metric']!r}", where=where)
+    return GateSpec(row=obj["row"], metric=obj["metric"], min=obj.get("min"),
+                    max=obj.get("max"), between=tuple(between) if between else None)
+
+
 def parse_table(data: dict, where: str | Path) -> TableSpec:
     """Validate one parsed TOML document; errors name the file and the field."""
     where = str(where)
@@ -247,6 +299,10 @@ def parse_table(data: dict, where: str | Path) -> TableSpec:
         columns=tuple(columns), order=data.get("order", 1000), path=where,
         compare_to=data.get("compare_to"),
     )
+    rows = spec.rows
+    spec = replace(spec, gates=tuple(
+        _gate(g, f"{where}: gates[{i}]", rows, spec.columns, defaults)
+        for i, g in enumerate(data.get("gates", []))))
     _check_cells(spec, where)
     if spec.compare_to is not None and spec.compare_to not in {
             spec.cell_filters(r, spec.columns[0]).get("method") for r in spec.rows}:
@@ -376,6 +432,9 @@ class Row:
     group_higher_is_better: bool | None = None
     reference: bool = False
     verdict: str | None = None  # seeded tables with compare_to: the row's verdict text
+    # a trivial control (flat hand, mean pose): ranked, never marked best; where it scores as
+    # well as the best method, no cell of that column is marked (``mark_best``)
+    control: bool = False
 
 
 @dataclass(frozen=True)
@@ -392,6 +451,7 @@ class TableData:
     notes: tuple[str, ...] = ()
     n_seeds: int = 1  # > 1: a seeded table (cells carry seed_means)
     verdict_header: str | None = None  # the verdict column's header (seeded, compare_to)
+    gates: tuple[tuple[str, bool, str], ...] = ()  # (check, passed, measured), in the notes
 
 
 # --- seeds -----------------------------------------------------------------------------------
@@ -695,28 +755,46 @@ def _column_header(
                   higher_is_better=hib, paired=col.before is not None)
 
 
-def mark_best(rows: list[Row]) -> list[Row]:
-    """Bold the best shown value per (column, metric) among non-reference rows; ties all bold.
+def _shown(c: Cell) -> float | None:
+    """A cell's value as displayed, signed so that larger is better; None when unranked."""
+    if c.ci is None or np.isnan(c.ci.mean) or c.higher_is_better is None:
+        return None
+    return round(c.ci.mean, c.decimals) * (1 if c.higher_is_better else -1)
 
-    Values are compared as displayed (rounded), so two cells that read the same are both
-    bold. Paired cells compare their "after" value.
-    """
+
+def best_values(rows: Sequence[Row]) -> tuple[dict, set]:
+    """The best shown value per (column, metric) among the ranked rows (not reference, not
+    control), and the keys where a control row scores as well or better: there the column
+    cannot tell a method from a trivial hand, and nothing is marked best."""
     best: dict[tuple[int, str | None], float] = {}
     for row in rows:
         for j, c in enumerate(row.cells):
-            if row.reference or c.ci is None or np.isnan(c.ci.mean) or c.higher_is_better is None:
-                continue
-            v = round(c.ci.mean, c.decimals) * (1 if c.higher_is_better else -1)
-            key = (j, c.metric)
-            best[key] = max(best.get(key, -np.inf), v)
+            v = None if row.reference or row.control else _shown(c)
+            if v is not None:
+                best[(j, c.metric)] = max(best.get((j, c.metric), -np.inf), v)
+    tied = {(j, c.metric) for row in rows if row.control and not row.reference
+            for j, c in enumerate(row.cells)
+            if _shown(c) is not None and (j, c.metric) in best
+            and _shown(c) >= best[(j, c.metric)]}
+    return best, tied
+
+
+def mark_best(rows: list[Row]) -> list[Row]:
+    """Bold the best shown value per (column, metric) among ranked rows; ties all bold.
+
+    Values are compared as displayed (rounded), so two cells that read the same are both
+    bold. Paired cells compare their "after" value. Reference and control rows are never
+    bold, and a column where a control row reads as well as the best method marks none
+    (:func:`best_values`).
+    """
+    best, tied = best_values(rows)
     out = []
     for row in rows:
         cells = []
         for j, c in enumerate(row.cells):
-            ok = (not row.reference and c.ci is not None and not np.isnan(c.ci.mean)
-                  and c.higher_is_better is not None)
-            v = round(c.ci.mean, c.decimals) * (1 if c.higher_is_better else -1) if ok else None
-            cells.append(replace(c, best=ok and v == best[(j, c.metric)]))
+            v = None if row.reference or row.control else _shown(c)
+            key = (j, c.metric)
+            cells.append(replace(c, best=v is not None and key not in tied and v == best[key]))
         out.append(replace(row, cells=tuple(cells)))
     return out
 
@@ -767,10 +845,36 @@ def compute_table(
         notes = (*notes, seeds_note(n_seeds))
         if verdict_header is not None:
             notes = (*notes, verdict_note(verdict_header.removeprefix("Verdict vs ")))
+    gates = check_gates(spec, rows, registry)
+    notes = (*notes, *(f"Sanity gate {'PASS' if ok else 'FAIL'}: {name} (measured {got})"
+                       for name, ok, got in gates))
     return TableData(id=spec.id, title=spec.title, version=spec.version,
                      description=spec.description, row_header=spec.row_header,
                      columns=columns, rows=tuple(mark_best(rows)), notes=tuple(notes),
-                     n_seeds=n_seeds, verdict_header=verdict_header)
+                     n_seeds=n_seeds, verdict_header=verdict_header, gates=gates)
+
+
+def check_gates(spec: TableSpec, rows: Sequence[Row],
+                registry: Registry[MetricSpec] | None) -> tuple[tuple[str, bool, str], ...]:
+    """(check, passed, measured) of each of ``spec.gates`` on the computed ``rows`` (one
+    per row spec, in order); a missing cell (NaN) fails its gate."""
+    out = []
+    for g in spec.gates:
+        j = next(j for j, c in enumerate(spec.columns)
+                 if {**spec.defaults, **c.filters}.get("metric") == g.metric)
+        value = {r.label: (r.cells[j].ci.mean if r.cells[j].ci is not None else np.nan)
+                 for r in rows}
+        unit, _, name = _metric_info(g.metric, registry, [])
+        v = value.get(g.row, np.nan)
+        if g.between is not None:
+            a, b = sorted(value.get(x, np.nan) for x in g.between)
+            ok = bool(a < v < b)
+            got = f"{v:.1f} against {a:.1f} and {b:.1f}"
+        else:
+            ok = bool(v >= g.min) if g.min is not None else bool(v <= g.max)
+            got = f"{v:.1f} {unit}"
+        out.append((g.describe(name, unit), ok, got))
+    return tuple(out)
 
 
 def _empty_results() -> pd.DataFrame:
