@@ -155,6 +155,7 @@ HOLD_FINGER_TORQUE = 0.3  # N m; servo torque cap: a human finger joint exerts ~
 HOLD_BONE_MASS = 0.005  # kg per finger bone (gravity-compensated: the hand does not sag)
 HOLD_CONE_EDGES = 8  # edges of the linearised friction cone in metrics.hold.plan_forces
 HOLD_MAX_DEPTH = 0.005  # m; a hand whose deepest vertex is further inside is not holding (qs check)
+HOLD_MU_SENSITIVITY = (0.5, 3.0)  # friction of the hold check's sensitivity columns (1: reported)
 HOLD_ARMATURE = 2e-3  # kg m^2; reflected inertia of a finger joint: servo period ~90 ms >> SIM_DT
 SIM_FREE_FALL_5 = 0.5 * GRAVITY * SIM_DT**2 * SIM_PAPER_STEPS * (SIM_PAPER_STEPS + 1)
 # m (2.55 mm): free fall over the support test's 5 semi-implicit Euler steps, printed beside it

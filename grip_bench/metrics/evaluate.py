@@ -71,7 +71,8 @@ if TYPE_CHECKING:
 
 # the metrics ``EvalOptions.physics`` switches off: MuJoCo's and the quasi-static hold check,
 # all on the same drawn held frames (``physics_frames``)
-PHYSICS_METRICS = ("hold_qs", "sim_stable", "sim_disp", "sim_disp_hold")
+PHYSICS_METRICS = ("hold_qs", "hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes", "sim_stable",
+                   "sim_disp", "sim_disp_hold")
 
 
 @dataclass(frozen=True)
@@ -533,12 +534,12 @@ def _bone_ids(poser: ProceduralPoser | MANOPoser, side: str, n_verts: int) -> np
     return np.concatenate([ids, np.zeros(n_verts - len(ids), ids.dtype)])
 
 
-def quasi_static_frame(pair: SequencePair, t: int) -> float:
-    """:func:`hold.can_hold` of frame ``t`` (1.0 or 0.0; NaN for a non-finite hand) with
-    every predicted hand the GT holds with there (both hands of a bimanual frame together),
-    against gravity ``-g up`` in the prediction's object frame; cached per frame so a
-    bimanual frame is checked once."""
-    from .hold import can_hold
+def _qs_contacts(pair: SequencePair, t: int) -> tuple | None:
+    """The quasi-static check's inputs of frame ``t``, object frame, cached per frame: the
+    deepest vertex's depth (m), the contacts' closest surface points (K, 3) and outward
+    pseudonormals (K, 3), the centre of mass (3,), the mass (kg), and the prediction's
+    object rotation (3, 3) (row-vector convention); None for a non-finite hand. Every
+    predicted hand the GT holds with at ``t`` is in (a bimanual frame is one test)."""
     from .physics import _object_inertia
 
     key = (t, "quasi-static")
@@ -547,27 +548,79 @@ def quasi_static_frame(pair: SequencePair, t: int) -> float:
         local = np.concatenate([pair.track("pred", s).local[t] for s in sides])
         sd = np.concatenate([pair.track("pred", s).sd[t] for s in sides])  # exact below 5 mm
         if not np.isfinite(sd).all():
-            pair._sims[key] = float("nan")
-            return pair._sims[key]
-        touch = sd <= C.HOLD_TOUCH
+            pair._sims[key] = None
+            return None
         # closest surface points and outward pseudonormals of the contacts only
-        _, closest, normal = pair.field.exact_contacts(local[touch])
+        _, closest, normal = pair.field.exact_contacts(local[sd <= C.HOLD_TOUCH])
         mass, com, _ = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)
-        up = np.asarray(pair.options.up, np.float64)
-        load = mass * (-C.GRAVITY * up) @ pair.pred_rotations[t].T  # world -> object frame
-        pair._sims[key] = float(can_hold(-float(sd.min()), closest, normal, com, load))
+        pair._sims[key] = (-float(sd.min()), closest, normal, com, mass,
+                           pair.pred_rotations[t])
     return pair._sims[key]
 
 
-@metric("hold_qs", "Quasi-static hold", "%", 1e2, True, "held", 1,
-        "share of tested held frames whose hand vertices within 2 mm of the object (the "
-        "deepest <= 5 mm inside) admit contact forces in friction cones of mu = 1 that hold "
-        "the object against gravity with zero net torque (a linear programme, no force cap; "
-        "both hands of a bimanual frame together; [run] physics_frames held frames)")
-def m_hold_qs(pair: SequencePair, side: str) -> Measured:
+def quasi_static_frame(pair: SequencePair, t: int, mu: float = C.SIM_FRICTION,
+                       gravity: np.ndarray | None = None) -> float:
+    """:func:`hold.can_hold` of frame ``t`` (1.0 or 0.0; NaN for a non-finite hand) with
+    friction ``mu`` against the world gravity ``gravity`` (3,) m/s^2 (default ``-g up``),
+    taken into the prediction's object frame."""
+    from .hold import can_hold
+
+    got = _qs_contacts(pair, t)
+    if got is None:
+        return float("nan")
+    depth, closest, normal, com, mass, rot = got
+    g = -C.GRAVITY * np.asarray(pair.options.up, np.float64) if gravity is None else gravity
+    load = mass * np.asarray(g, np.float64) @ rot.T  # world -> object frame
+    return float(can_hold(depth, closest, normal, com, load, mu))
+
+
+def _qs(pair: SequencePair, side: str, mu: float, axes: bool = False) -> Measured:
+    """Per tested frame: held (1/0) at ``mu`` under the frame's gravity, or (``axes``) the
+    share of the six axis directions of the world it is held under."""
+    from .hold import AXES, gravity_along
+
     idx = physics_frames(pair, side)
-    vals = [quasi_static_frame(pair, int(t)) for t in idx]
+    if axes:
+        up = np.asarray(pair.options.up, np.float64)
+        vals = [np.mean([quasi_static_frame(pair, int(t), mu, gravity_along(a, up))
+                         for a in AXES]) for t in idx]
+    else:
+        vals = [quasi_static_frame(pair, int(t), mu) for t in idx]
     return Measured(idx, np.asarray(vals, dtype=np.float64))
+
+
+_QS_DEF = ("hand vertices within 2 mm of the object (the deepest <= 5 mm inside) admit "
+           "contact forces in friction cones of mu = {mu} that hold the object against "
+           "{g} with zero net torque (a linear programme, no force cap; both hands of a "
+           "bimanual frame together; [run] physics_frames held frames)")
+
+
+@metric("hold_qs", "Quasi-static hold", "%", 1e2, True, "held", 1,
+        "share of tested held frames whose " + _QS_DEF.format(mu=1, g="gravity"))
+def m_hold_qs(pair: SequencePair, side: str) -> Measured:
+    return _qs(pair, side, C.SIM_FRICTION)
+
+
+@metric("hold_qs_mu05", "Quasi-static hold (mu = 0.5)", "%", 1e2, True, "held", 1,
+        "hold_qs at mu = 0.5 (friction sensitivity; physics table only): share of frames "
+        "whose " + _QS_DEF.format(mu=0.5, g="gravity"), leaderboard=False)
+def m_hold_qs_mu05(pair: SequencePair, side: str) -> Measured:
+    return _qs(pair, side, C.HOLD_MU_SENSITIVITY[0])
+
+
+@metric("hold_qs_mu3", "Quasi-static hold (mu = 3)", "%", 1e2, True, "held", 1,
+        "hold_qs at mu = 3 (friction sensitivity; physics table only): share of frames "
+        "whose " + _QS_DEF.format(mu=3, g="gravity"), leaderboard=False)
+def m_hold_qs_mu3(pair: SequencePair, side: str) -> Measured:
+    return _qs(pair, side, C.HOLD_MU_SENSITIVITY[1])
+
+
+@metric("hold_qs_axes", "Quasi-static hold (6 gravity directions)", "%", 1e2, True, "held", 1,
+        "robustness of hold_qs (physics table only): share of (frame, direction) tests, "
+        "gravity along each of the world's six axis directions, whose "
+        + _QS_DEF.format(mu=1, g="that gravity"), leaderboard=False)
+def m_hold_qs_axes(pair: SequencePair, side: str) -> Measured:
+    return _qs(pair, side, C.SIM_FRICTION, axes=True)
 
 
 def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult:

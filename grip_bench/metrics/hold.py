@@ -453,7 +453,9 @@ def _angle(q0: np.ndarray, q1: np.ndarray) -> float:
     return float(np.degrees(2.0 * np.arccos(c)))
 
 
-def _gravity(direction: str | None, up: np.ndarray) -> np.ndarray:
+def gravity_along(direction: str | None, up: np.ndarray) -> np.ndarray:
+    """Gravity (3,) m/s^2: ``-g up`` for None, else ``g`` along one of :data:`AXES`
+    ("+x" ... "-z", world axes)."""
     if direction is None:
         return -C.GRAVITY * up
     axis = np.eye(3)["xyz".index(direction[1])]
@@ -484,7 +486,7 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
         for d in directions:
             run = mujoco.MjData(model)
             mujoco.mj_copyData(run, model, data)
-            model.opt.gravity[:] = _gravity(d, np.asarray(up, np.float64))
+            model.opt.gravity[:] = gravity_along(d, np.asarray(up, np.float64))
             if not _step(model, run, int(round(C.SIM_HOLD_SECONDS / C.SIM_DT))):
                 out.append(_failed(settle))
                 continue

@@ -36,6 +36,9 @@ class MetricSpec:
     description: str
     # (pair: metrics.evaluate.SequencePair, side) -> metrics.evaluate.Measured, SI units
     compute: Callable[[Any, str], Any] | None = None
+    # False: a table's sensitivity column (e.g. the hold check at other frictions), kept off
+    # the leaderboard, which shows each quantity once
+    leaderboard: bool = True
 
     def describe(self) -> str:
         """One line for ``grip-bench ls metrics``."""
@@ -54,14 +57,17 @@ METRICS: Registry[MetricSpec] = Registry("metric")
 
 
 def metric(id: str, name: str, unit: str, scale: float, higher_is_better: bool,
-           frame_mask: Literal["all", "held"], version: int, description: str
+           frame_mask: Literal["all", "held"], version: int, description: str,
+           leaderboard: bool = True
            ) -> Callable[[Callable[[Any, str], Any]], Callable[[Any, str], Any]]:
     """Decorator registering the per-hand compute function of metric ``id`` (in definition
-    order, which is the order of tables and leaderboards)."""
+    order, which is the order of tables and leaderboards; ``leaderboard`` False: tables
+    only)."""
 
     def register(fn: Callable[[Any, str], Any]) -> Callable[[Any, str], Any]:
         METRICS.register(id, MetricSpec(id, name, unit, scale, higher_is_better, frame_mask,
-                                        version, description, compute=fn))
+                                        version, description, compute=fn,
+                                        leaderboard=leaderboard))
         return fn
 
     return register

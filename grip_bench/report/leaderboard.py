@@ -89,13 +89,17 @@ def leaderboard(results_df: pd.DataFrame,
     default; ``None`` keeps all rows. ``hands`` maps a method to the hands it predicts
     (``MethodSpec.hands``): rows of a side it does not predict are dropped, because that
     hand is the method's input (on the clean split, the ground truth) and would score 0.
-    Rows are ordered by metric, hand, then best first. ``averaging`` as in
+    Metrics registered with ``leaderboard=False`` (a table's sensitivity columns) are left
+    out. Rows are ordered by metric, hand, then best first. ``averaging`` as in
     :func:`grip_bench.results.stats.sequence_ci`; kept in ``lb.attrs["averaging"]``.
     """
     registry = metrics_registry if metrics_registry is not None else default_metric_registry()
     df = results_df if perturbation is None else \
         results_df[results_df["perturbation"] == perturbation]
     df = df[~unpredicted(df, hands or {})]
+    if registry is not None:  # table-only metrics (MetricSpec.leaderboard False) stay off
+        shown = {m for m in set(df["metric"]) if m not in registry or registry.get(m).leaderboard}
+        df = df[df["metric"].isin(shown)]
     records = []
     for (method, metric, hand), rows in df.groupby(["method", "metric", "hand"], sort=True):
         ci = sequence_ci(rows, n_boot=n_boot, seed=seed, averaging=averaging)

@@ -295,3 +295,12 @@ def test_render_all_splits_datasets(tmp_path):
     names = sorted(str(p.relative_to(tmp_path / "out")) for p in written)
     assert "grab/table2_ablation.md" in names and "synthgrab/physics.md" in names
     assert "runtime.md" in names and len(names) == 2 * (len(TABLES) - 1) + 1
+
+
+def test_table_only_metrics_are_left_off_the_leaderboard():
+    from grip_bench.report.leaderboard import leaderboard
+
+    cells = {(m, "none", metric, "right"): 50.0 for m in ("grip", "gt")
+             for metric in ("hold_qs", "hold_qs_mu3")}
+    df = _frame({k: v for k, v in cells.items()})
+    assert set(leaderboard(df)["metric"]) == {"hold_qs"}

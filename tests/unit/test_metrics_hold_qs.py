@@ -142,3 +142,35 @@ def test_no_held_frame_is_nan_and_physics_off_drops_it(fixture):
     assert np.isnan(got["left"]) and np.isfinite(got["right"])
     rows, _ = evaluate_sequence(mug, mug, lib, options=EvalOptions(physics=False))
     assert "hold_qs" not in {r.metric for r in rows}
+
+
+def test_friction_and_gravity_direction_variants(fixture):
+    """More friction never holds less; the six-direction share is a share of six tests; the
+    flat hand holds under none of them; world gravity is one of the six directions."""
+    lib, seqs = fixture
+    ids = ("hold_qs", "hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes")
+    for gt in seqs:
+        for pred in (gt, V.DEGRADATIONS["open"].apply(gt, 0.1, lib, 0)):
+            rows, _ = evaluate_sequence(pred, gt, lib, options=EvalOptions(metrics=ids))
+            by = {(r.metric, r.hand): r.value for r in rows}
+            for hand in ("right", "left"):
+                v = [by[(m, hand)] for m in ids]
+                if np.isnan(v[0]):
+                    assert all(np.isnan(x) for x in v)
+                    continue
+                assert v[1] <= v[0] <= v[2], (gt.name, hand, v)
+                assert 0.0 <= v[3] <= 100.0
+    # a palm-up pinch-free support: the analytic cube held from below passes only the
+    # direction that presses it onto the palm
+    pts, nrm = _contacts((1, -1.0))
+    held = [H.can_hold(0.0, pts, nrm, np.zeros(3), 0.064 * H.gravity_along(a, np.eye(3)[1]))
+            for a in H.AXES]
+    assert held == [False, False, False, True, False, False]  # only "-y": onto the palm
+
+
+def test_sensitivity_columns_stay_off_the_leaderboard():
+    from grip_bench.metrics.registry import METRICS
+
+    assert METRICS.get("hold_qs").leaderboard
+    assert not any(METRICS.get(m).leaderboard
+                   for m in ("hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes"))
