@@ -542,7 +542,7 @@ def _qs_contacts(pair: SequencePair, t: int) -> tuple | None:
     predicted hand the GT holds with at ``t`` is in (a bimanual frame is one test)."""
     from .physics import _object_inertia
 
-    key = (t, "quasi-static")
+    key = (t, "quasi-static contacts")
     if key not in pair._sims:
         sides = [s for s in pair.options.sides if pair.held(s)[t]]
         local = np.concatenate([pair.track("pred", s).local[t] for s in sides])
@@ -559,31 +559,42 @@ def _qs_contacts(pair: SequencePair, t: int) -> tuple | None:
 
 
 def quasi_static_frame(pair: SequencePair, t: int, mu: float = C.SIM_FRICTION,
-                       gravity: np.ndarray | None = None) -> float:
+                       axis: str | None = None) -> float:
     """:func:`hold.can_hold` of frame ``t`` (1.0 or 0.0; NaN for a non-finite hand) with
-    friction ``mu`` against the world gravity ``gravity`` (3,) m/s^2 (default ``-g up``),
-    taken into the prediction's object frame."""
-    from .hold import can_hold
+    friction ``mu`` against the world's gravity (``axis`` None: ``-g up``) or gravity along
+    one of ``hold.AXES``, taken into the prediction's object frame. Cached per (frame, mu,
+    direction); the cone wrenches per (frame, mu)."""
+    from .hold import can_hold, cone_wrenches, gravity_along
 
+    up = np.asarray(pair.options.up, np.float64)
+    g = gravity_along(axis, up)
+    if axis is not None and np.array_equal(g, gravity_along(None, up)):
+        axis = None  # the world's own gravity: the same test
+    key = (t, "quasi-static", mu, axis)
+    if key in pair._sims:
+        return pair._sims[key]
     got = _qs_contacts(pair, t)
     if got is None:
-        return float("nan")
-    depth, closest, normal, com, mass, rot = got
-    g = -C.GRAVITY * np.asarray(pair.options.up, np.float64) if gravity is None else gravity
-    load = mass * np.asarray(g, np.float64) @ rot.T  # world -> object frame
-    return float(can_hold(depth, closest, normal, com, load, mu))
+        held = float("nan")
+    else:
+        depth, closest, normal, com, mass, rot = got
+        wkey = (t, "quasi-static wrench", mu)
+        if wkey not in pair._sims and len(closest):
+            pair._sims[wkey] = cone_wrenches(closest, -normal, com, mu)[1]
+        load = mass * g @ rot.T  # world -> object frame
+        held = float(can_hold(depth, closest, normal, com, load, mu, pair._sims.get(wkey)))
+    pair._sims[key] = held
+    return held
 
 
 def _qs(pair: SequencePair, side: str, mu: float, axes: bool = False) -> Measured:
     """Per tested frame: held (1/0) at ``mu`` under the frame's gravity, or (``axes``) the
     share of the six axis directions of the world it is held under."""
-    from .hold import AXES, gravity_along
+    from .hold import AXES
 
     idx = physics_frames(pair, side)
     if axes:
-        up = np.asarray(pair.options.up, np.float64)
-        vals = [np.mean([quasi_static_frame(pair, int(t), mu, gravity_along(a, up))
-                         for a in AXES]) for t in idx]
+        vals = [np.mean([quasi_static_frame(pair, int(t), mu, a) for a in AXES]) for t in idx]
     else:
         vals = [quasi_static_frame(pair, int(t), mu) for t in idx]
     return Measured(idx, np.asarray(vals, dtype=np.float64))

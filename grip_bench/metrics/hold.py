@@ -547,6 +547,28 @@ def support(scene: Scene, up: tuple[float, float, float] = C.UP) -> SupportResul
 
 
 # ---------------------------------------------------------------- quasi-static force check
+def cone_wrenches(points: np.ndarray, normals: np.ndarray, com: np.ndarray, mu: float,
+                  edges: int = C.HOLD_CONE_EDGES) -> tuple[np.ndarray, np.ndarray]:
+    """The friction-cone edges (K, E, 3) of contacts at ``points`` (K, 3) m with unit-able
+    ``normals`` (K, 3) (pointing into the object) and friction ``mu``, and their wrenches
+    (6, K E) about ``com`` (3,) m: forces (N) over torques scaled to N by the largest lever
+    arm. The cone is the inscribed pyramid of ``edges`` edges (one along the first tangent)."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(n, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(n, t1)
+    ang = 2.0 * np.pi * np.arange(edges) / edges
+    e = n[:, None] + mu * (np.cos(ang)[None, :, None] * t1[:, None] +
+                           np.sin(ang)[None, :, None] * t2[:, None])  # (K, E, 3)
+    r = p - np.asarray(com, np.float64)
+    scale = max(float(np.abs(r).max()), 1e-6)  # torque rows in N, as the force rows
+    torque = np.cross(r[:, None], e).reshape(-1, 3).T / scale
+    return e, np.concatenate([e.reshape(-1, 3).T, torque])
+
+
 def plan_forces(points: np.ndarray, normals: np.ndarray, com: np.ndarray, load: np.ndarray,
                 mu: float, edges: int = C.HOLD_CONE_EDGES) -> np.ndarray | None:
     """Contact forces (K, 3) N that the hand exerts on the object at ``points`` (K, 3) m, each
@@ -560,23 +582,11 @@ def plan_forces(points: np.ndarray, normals: np.ndarray, com: np.ndarray, load: 
     """
     from scipy.optimize import linprog
 
-    p = np.asarray(points, np.float64).reshape(-1, 3)
-    n = np.asarray(normals, np.float64).reshape(-1, 3)
-    k = len(p)
+    k = len(np.asarray(points).reshape(-1, 3))
     if k == 0:
         return None
-    n = n / np.linalg.norm(n, axis=1, keepdims=True)
-    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    t1 = np.cross(n, helper)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(n, t1)
-    ang = 2.0 * np.pi * np.arange(edges) / edges
-    e = n[:, None] + mu * (np.cos(ang)[None, :, None] * t1[:, None] +
-                           np.sin(ang)[None, :, None] * t2[:, None])  # (K, E, 3)
-    r = p - np.asarray(com, np.float64)
-    scale = max(float(np.abs(r).max()), 1e-6)  # torque rows in N, as the force rows
-    a_eq = np.concatenate([e.reshape(-1, 3).T, np.cross(r[:, None], e).reshape(-1, 3).T / scale])
-    a_eq = np.concatenate([a_eq, np.zeros((6, 1))], axis=1)
+    e, wrench = cone_wrenches(points, normals, com, mu, edges)
+    a_eq = np.concatenate([wrench, np.zeros((6, 1))], axis=1)
     b_eq = np.concatenate([-np.asarray(load, np.float64), np.zeros(3)])
     a_ub = np.concatenate([np.kron(np.eye(k), np.ones((1, edges))), -np.ones((k, 1))], axis=1)
     cost = np.r_[np.full(k * edges, 1e-3), 1.0]  # the max first, then the least total
@@ -587,25 +597,45 @@ def plan_forces(points: np.ndarray, normals: np.ndarray, com: np.ndarray, load: 
     return np.einsum("ke,kec->kc", res.x[:-1].reshape(k, edges), e)
 
 
+def can_balance(wrench: np.ndarray, load: np.ndarray) -> bool:
+    """Whether non-negative weights of the cone-edge ``wrench`` columns (6, M)
+    (:func:`cone_wrenches`) cancel ``load`` (3,) N with zero torque: the feasibility half of
+    :func:`plan_forces` (the same forces exist iff it finds some), as a 6-row linear
+    programme with no objective, 2-4x faster than the force-minimising one."""
+    from scipy.optimize import linprog
+
+    if wrench.shape[1] == 0:
+        return False
+    b_eq = np.concatenate([-np.asarray(load, np.float64), np.zeros(3)])
+    res = linprog(np.zeros(wrench.shape[1]), A_eq=wrench, b_eq=b_eq, bounds=(0, None),
+                  method="highs")
+    return res.status == 0
+
+
 def can_hold(depth: float, closest: np.ndarray, normals: np.ndarray, com: np.ndarray,
-             load: np.ndarray, mu: float = C.SIM_FRICTION) -> bool:
+             load: np.ndarray, mu: float = C.SIM_FRICTION,
+             wrench: np.ndarray | None = None) -> bool:
     """The quasi-static hold check of one frame, in the object's frame (the ``hold_qs``
     metric): whether a hand whose contacts (its vertices within ``HOLD_TOUCH`` of the object,
     outside or inside) lie at the object-surface points ``closest`` (K, 3) m with the
     object's outward unit ``normals`` (K, 3) there can hold the object against ``load``
     (3,) N (its weight ``m g`` in the object's frame) about its centre of mass ``com``
-    (3,) m with friction ``mu``: :func:`plan_forces` finds forces inside the contacts'
-    friction cones that cancel the load with zero torque.
+    (3,) m with friction ``mu``: forces inside the contacts' friction cones cancel the load
+    with zero torque (:func:`can_balance`, the feasibility of :func:`plan_forces`).
 
     Fails when ``depth`` (m, the deepest hand vertex's distance inside the object; <= 0 when
     none is inside) exceeds ``HOLD_MAX_DEPTH``: a hand that deep is in the object, not
     holding it (contacts all around would "hold" anything), and when there is no contact.
     No force cap: it asks whether the contacts' geometry can hold the object (a hand
-    squeezes as hard as it needs), not whether a simulated hand does.
+    squeezes as hard as it needs), not whether a simulated hand does. ``wrench``: the
+    contacts' ``cone_wrenches(closest, -normals, com, mu)[1]`` when the caller keeps it (one
+    frame tested under several loads).
     """
     if depth > C.HOLD_MAX_DEPTH or len(closest) == 0:
         return False
-    return plan_forces(closest, -np.asarray(normals), com, load, mu) is not None
+    if wrench is None:
+        wrench = cone_wrenches(closest, -np.asarray(normals), com, mu)[1]
+    return can_balance(wrench, load)
 
 
 def force_ratio(hands: list[PosedHand], obj: trimesh.Trimesh,
