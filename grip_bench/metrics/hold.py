@@ -597,19 +597,34 @@ def plan_forces(points: np.ndarray, normals: np.ndarray, com: np.ndarray, load: 
     return np.einsum("ke,kec->kc", res.x[:-1].reshape(k, edges), e)
 
 
+# Relative residual below which non-negative least squares counts a load as balanced: the
+# solver's own round-off on these 6-row systems is ~1e-15 of the load, and a load its cone
+# cannot reach leaves a residual of the order of its distance to that cone. A property of
+# the solver, not of the protocol (core/constants.py holds those).
+_BALANCE_RTOL = 1e-9
+
+
 def can_balance(wrench: np.ndarray, load: np.ndarray) -> bool:
     """Whether non-negative weights of the cone-edge ``wrench`` columns (6, M)
     (:func:`cone_wrenches`) cancel ``load`` (3,) N with zero torque: the feasibility half of
-    :func:`plan_forces` (the same forces exist iff it finds some), as a 6-row linear
-    programme with no objective, 2-4x faster than the force-minimising one."""
-    from scipy.optimize import linprog
+    :func:`plan_forces` (the same forces exist iff it finds some).
+
+    Non-negative least squares (Lawson-Hanson; the residual is 0 exactly when the wrench
+    ``(-load, 0)`` lies in the cone of the columns), ~10x faster than the linear programme
+    on these 6-row systems; HiGHS's feasibility programme answers if it does not converge.
+    """
+    from scipy.optimize import linprog, nnls
 
     if wrench.shape[1] == 0:
         return False
-    b_eq = np.concatenate([-np.asarray(load, np.float64), np.zeros(3)])
-    res = linprog(np.zeros(wrench.shape[1]), A_eq=wrench, b_eq=b_eq, bounds=(0, None),
-                  method="highs")
-    return res.status == 0
+    b = np.concatenate([-np.asarray(load, np.float64), np.zeros(3)])
+    try:
+        _, residual = nnls(wrench, b, maxiter=20 * wrench.shape[1])
+        return bool(residual <= _BALANCE_RTOL * np.linalg.norm(b))
+    except RuntimeError:  # iteration limit: decide with the linear programme
+        res = linprog(np.zeros(wrench.shape[1]), A_eq=wrench, b_eq=b, bounds=(0, None),
+                      method="highs")
+        return res.status == 0
 
 
 def can_hold(depth: float, closest: np.ndarray, normals: np.ndarray, com: np.ndarray,

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.optimize import nnls
 
 from grip_bench.core import constants as C
 from grip_bench.data.grab_io import read_grab
@@ -56,11 +55,14 @@ def test_too_deep_or_no_contact_fails():
     assert not H.can_hold(0.0, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(3), LOAD)
 
 
-def _feasible_nnls(points, normals, com, load, mu, edges=C.HOLD_CONE_EDGES) -> bool:
-    """Naive reference: the cone-edge wrenches (6, K E) reach -load with non-negative
-    weights iff non-negative least squares leaves no residual. Edges built independently:
-    any unit tangent pair (the cone is symmetric only up to the edge placement, so the same
-    first tangent rule is used: cross(n, x) unless n is near x)."""
+def _feasible_lp(points, normals, com, load, mu, edges=C.HOLD_CONE_EDGES) -> bool:
+    """Naive reference: a linear programme (HiGHS, not the least squares ``can_hold`` uses)
+    on cone-edge wrenches built here point by point: non-negative edge weights whose forces
+    cancel -load and whose torques about ``com`` cancel. The edges start on the same first
+    tangent rule (cross(n, x) unless n is near x), as the inscribed pyramid is not rotation
+    invariant."""
+    from scipy.optimize import linprog
+
     cols = []
     for p, n in zip(points, normals, strict=True):
         n = n / np.linalg.norm(n)
@@ -71,17 +73,17 @@ def _feasible_nnls(points, normals, com, load, mu, edges=C.HOLD_CONE_EDGES) -> b
         for k in range(edges):
             a = 2 * np.pi * k / edges
             f = n + mu * (np.cos(a) * t1 + np.sin(a) * t2)
-            cols.append(np.r_[f, np.cross(p - com, f) / 0.02])
+            cols.append(np.r_[f, np.cross(p - com, f)])
     A = np.array(cols).T
-    b = np.r_[-load, np.zeros(3)]
-    _, residual = nnls(A, b, maxiter=5000)
-    return residual < 1e-7
+    res = linprog(np.zeros(A.shape[1]), A_eq=A, b_eq=np.r_[-load, np.zeros(3)],
+                  bounds=(0, None), method="highs")
+    return res.status == 0
 
 
-def test_feasibility_matches_a_non_negative_least_squares_reference():
+def test_feasibility_matches_a_linear_programme_reference():
     rng = np.random.default_rng(0)
-    agree = []
-    for trial in range(60):
+    agree, verdicts = [], []
+    for trial in range(80):
         k = int(rng.integers(1, 5))
         faces = [(int(rng.integers(3)), float(rng.choice([-1.0, 1.0]))) for _ in range(k)]
         pts, nrm = _contacts(*faces)
@@ -92,9 +94,29 @@ def test_feasibility_matches_a_non_negative_least_squares_reference():
         load = rng.normal(size=3)
         mu = float(rng.choice([0.3, 1.0, 3.0]))
         ours = H.can_hold(0.0, pts, nrm, np.zeros(3), load, mu)
-        agree.append(ours == _feasible_nnls(pts, -nrm, np.zeros(3), load, mu))
+        verdicts.append(ours)
+        agree.append(ours == _feasible_lp(pts, -nrm, np.zeros(3), load, mu))
         assert agree[-1], (trial, faces, mu)
-    assert len(agree) > 40
+        # and plan_forces (the force-minimising programme) finds forces exactly then
+        assert ours == (H.plan_forces(pts, -nrm, np.zeros(3), load, mu) is not None)
+    assert len(agree) > 50 and 0 < sum(verdicts) < len(verdicts)  # both verdicts drawn
+
+
+def test_contacts_on_a_sphere_agree_with_the_reference():
+    """Random contact sets on a sphere (one-sided halves included), random loads and
+    frictions: least squares and the linear programme give the same verdicts."""
+    rng = np.random.default_rng(1)
+    verdicts = []
+    for trial in range(60):
+        d = rng.normal(size=(int(rng.integers(3, 40)), 3))
+        if trial % 2:
+            d[:, 0] = np.abs(d[:, 0])
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        mu, load = float(rng.choice([0.5, 1.0, 3.0])), rng.normal(size=3)
+        ours = H.can_hold(0.0, 0.03 * d, d, np.zeros(3), load, mu)
+        assert ours == _feasible_lp(0.03 * d, -d, np.zeros(3), load, mu), trial
+        verdicts.append(ours)
+    assert 0 < sum(verdicts) < len(verdicts)
 
 
 # ------------------------------------------------------------------ the metric
