@@ -271,7 +271,7 @@ def log_sensitivity_gate(st: RunState) -> None:
 def log_table_gates(st: RunState) -> None:
     """The sanity gates of the tables that declare some (``[[gates]]``), as printed under
     each table, in the run's log (and on stderr)."""
-    from ..report.tables import TABLES, compute_table
+    from ..report.tables import TABLES, compute_table, gate_word
     from ..results.schema import read_results
 
     path = st.cfg.out / "results.csv"
@@ -282,11 +282,12 @@ def log_table_gates(st: RunState) -> None:
     for spec in specs:
         data = compute_table(spec, results, n_boot=opts["bootstrap_n"],
                              seed=opts["bootstrap_seed"], averaging=opts["averaging"])
-        verdict = "PASS" if all(ok for _, ok, _ in data.gates) else "FAIL"
+        oks = [ok for _, ok, _ in data.gates]
+        verdict = "FAIL" if False in oks else ("NOT CHECKED" if None in oks else "PASS")
         st.log(f"{spec.id}: sanity gates {verdict} "
                f"({st.cfg.out / 'tables' / (spec.id + '.md')})")
         for name, ok, got in data.gates:
-            st.log(f"  {'PASS' if ok else 'FAIL'}: {name} (measured {got})")
+            st.log(f"  {gate_word(ok)}: {name} ({'measured ' if ok is not None else ''}{got})")
 
 
 def assemble_viewer(st: RunState) -> None:

@@ -122,7 +122,10 @@ def test_physics_sanity_gates_are_printed_under_the_table():
         render(data, "md")
     missing = compute_table(TABLES.get("physics"), _physics_frame(85.0, 2.0, 30.0).query(
         "method != 'perturbed-input'"), n_boot=20)
-    assert [ok for _, ok, _ in missing.gates] == [True, True, False]  # a missing cell fails
+    assert [ok for _, ok, _ in missing.gates] == [True, True, None]  # a missing row: unchecked
+    assert ("- Sanity gate NOT CHECKED: GRAB-T 0.01 input (control) between Flat hand (control) "
+            "and Ground truth on Quasi-static hold (no value for GRAB-T 0.01 input (control))"
+            ) in render(missing, "md")
 
 
 def test_a_column_a_control_wins_marks_no_best():

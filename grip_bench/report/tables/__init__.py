@@ -39,8 +39,9 @@ File format (all keys listed in ``_TABLE_KEYS`` / ``_ROW_KEYS`` / ``_COLUMN_KEYS
                 row = "..." metric = "..." max = 5.0 | between = ["row a", "row b"]
 
 A gate is checked on the table's own cells (a row's value in the column of ``metric``,
-report units) and printed under the table (PASS / FAIL with the measured value): a metric
-shows there that it can rank (docs/contract.md, "Tables", "Sanity gates").
+report units) and printed under the table (PASS / FAIL with the measured value; NOT
+CHECKED when a row it names has no value): a metric shows there that it can rank
+(docs/contract.md, "Tables", "Sanity gates").
 """
 
 from __future__ import annotations
@@ -451,7 +452,8 @@ class TableData:
     notes: tuple[str, ...] = ()
     n_seeds: int = 1  # > 1: a seeded table (cells carry seed_means)
     verdict_header: str | None = None  # the verdict column's header (seeded, compare_to)
-    gates: tuple[tuple[str, bool, str], ...] = ()  # (check, passed, measured), in the notes
+    # (check, passed: True / False / None = not checked, measured), also in the notes
+    gates: tuple[tuple[str, bool | None, str], ...] = ()
 
 
 # --- seeds -----------------------------------------------------------------------------------
@@ -846,7 +848,8 @@ def compute_table(
         if verdict_header is not None:
             notes = (*notes, verdict_note(verdict_header.removeprefix("Verdict vs ")))
     gates = check_gates(spec, rows, registry)
-    notes = (*notes, *(f"Sanity gate {'PASS' if ok else 'FAIL'}: {name} (measured {got})"
+    notes = (*notes, *(f"Sanity gate {gate_word(ok)}: {name} "
+                       f"({'measured ' if ok is not None else ''}{got})"
                        for name, ok, got in gates))
     return TableData(id=spec.id, title=spec.title, version=spec.version,
                      description=spec.description, row_header=spec.row_header,
@@ -854,10 +857,11 @@ def compute_table(
                      n_seeds=n_seeds, verdict_header=verdict_header, gates=gates)
 
 
-def check_gates(spec: TableSpec, rows: Sequence[Row],
-                registry: Registry[MetricSpec] | None) -> tuple[tuple[str, bool, str], ...]:
+def check_gates(spec: TableSpec, rows: Sequence[Row], registry: Registry[MetricSpec] | None
+                ) -> tuple[tuple[str, bool | None, str], ...]:
     """(check, passed, measured) of each of ``spec.gates`` on the computed ``rows`` (one
-    per row spec, in order); a missing cell (NaN) fails its gate."""
+    per row spec, in order); passed is None (not checked) when a row it names has no value
+    (the run did not evaluate that method: a profile without the table's controls)."""
     out = []
     for g in spec.gates:
         j = next(j for j, c in enumerate(spec.columns)
@@ -866,15 +870,25 @@ def check_gates(spec: TableSpec, rows: Sequence[Row],
                  for r in rows}
         unit, _, name = _metric_info(g.metric, registry, [])
         v = value.get(g.row, np.nan)
+        named = [v, *(value.get(x, np.nan) for x in g.between or ())]
+        if not np.isfinite(named).all():
+            missing = [r for r, x in zip([g.row, *(g.between or ())], named, strict=True)
+                       if not np.isfinite(x)]
+            out.append((g.describe(name, unit), None, f"no value for {', '.join(missing)}"))
+            continue
         if g.between is not None:
-            a, b = sorted(value.get(x, np.nan) for x in g.between)
-            ok = bool(a < v < b)
-            got = f"{v:.1f} against {a:.1f} and {b:.1f}"
+            a, b = sorted(named[1:])
+            ok, got = bool(a < v < b), f"{v:.1f} against {a:.1f} and {b:.1f}"
         else:
             ok = bool(v >= g.min) if g.min is not None else bool(v <= g.max)
             got = f"{v:.1f} {unit}"
         out.append((g.describe(name, unit), ok, got))
     return tuple(out)
+
+
+def gate_word(ok: bool | None) -> str:
+    """PASS, FAIL or NOT CHECKED (a gate whose rows have no value)."""
+    return "NOT CHECKED" if ok is None else ("PASS" if ok else "FAIL")
 
 
 def _empty_results() -> pd.DataFrame:
