@@ -487,8 +487,10 @@ def set_metrics(cfg: RunConfig, label: str, method: str | None = None) -> list[s
 
     The clean set gets every chosen metric (the leaderboard shows them all), except for
     an ablation variant (``MethodSpec.variant_of``), which is compared only in its tables;
-    a perturbed set gets only those a chosen table reads on it (Table 3: MPVPE, MPJPE).
-    This spares the costly physics and intersection metrics where no table shows them.
+    a perturbed set gets only those a chosen table reads on it for that method (Table 3:
+    MPVPE, MPJPE; the physics table: its columns for the GRAB-T 0.01 input, not for the
+    methods refining that input). This spares the costly physics and intersection metrics
+    where no table shows them.
     """
     from ..methods.api import METHODS
     from ..metrics.registry import METRICS
@@ -497,10 +499,16 @@ def set_metrics(cfg: RunConfig, label: str, method: str | None = None) -> list[s
     variant = method is not None and method in METHODS and METHODS.get(method).variant_of
     if label == CLEAN and not variant:
         return sorted(chosen)
-    read = {flt.get("metric") for _, flt in _table_cells(cfg)
+    read = {flt.get("metric") for col, flt in _table_cells(cfg)
             if flt.get("perturbation", CLEAN) == label
-            and (not variant or flt.get("method") == method)}
+            and (method is None or method in _cell_methods(col, flt)
+                 or (not variant and flt.get("method") is None))}
     return sorted(m for m in chosen if m in read)
+
+
+def _cell_methods(col: ColumnSpec, flt: dict) -> set[str | None]:
+    """The methods a table cell reads: its own and its column's ``before`` pairing's."""
+    return {flt.get("method"), (col.before or {}).get("method")}
 
 
 def _metric_inputs(cfg: RunConfig, label: str = CLEAN, method: str | None = None) -> dict:
