@@ -602,7 +602,7 @@ def _qs(pair: SequencePair, side: str, mu: float, axes: bool = False) -> Measure
 
 _QS_DEF = ("hand vertices within 2 mm of the object (the deepest <= 5 mm inside) admit "
            "contact forces in friction cones of mu = {mu} that hold the object against "
-           "{g} with zero net torque (a linear programme, no force cap; both hands of a "
+           "{g} with zero net torque (no force cap; both hands of a "
            "bimanual frame together; [run] physics_frames held frames)")
 
 
