@@ -391,7 +391,7 @@ def method_needs(cfg: RunConfig) -> dict[str, list[str]]:
     needs = {m: {CLEAN} if METHODS.get(m).clean else set() for m in cfg.methods}
     for col, flt in _table_cells(cfg):
         pert = flt.get("perturbation", CLEAN)
-        for method in (flt.get("method"), (col.before or {}).get("method")):
+        for method in _cell_methods(col, flt):
             if method in needs and pert in cfg.perturbations:
                 needs[method].add(pert)
     order = [CLEAN, *cfg.perturbations]

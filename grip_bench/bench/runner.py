@@ -271,7 +271,7 @@ def log_sensitivity_gate(st: RunState) -> None:
 def log_table_gates(st: RunState) -> None:
     """The sanity gates of the tables that declare some (``[[gates]]``), as printed under
     each table, in the run's log (and on stderr)."""
-    from ..report.tables import TABLES, compute_table, gate_word
+    from ..report.tables import TABLES, compute_table, gate_line
     from ..results.schema import read_results
 
     path = st.cfg.out / "results.csv"
@@ -286,8 +286,8 @@ def log_table_gates(st: RunState) -> None:
         verdict = "FAIL" if False in oks else ("NOT CHECKED" if None in oks else "PASS")
         st.log(f"{spec.id}: sanity gates {verdict} "
                f"({st.cfg.out / 'tables' / (spec.id + '.md')})")
-        for name, ok, got in data.gates:
-            st.log(f"  {gate_word(ok)}: {name} ({'measured ' if ok is not None else ''}{got})")
+        for gate in data.gates:
+            st.log(f"  {gate_line(*gate)}")
 
 
 def assemble_viewer(st: RunState) -> None:

@@ -243,13 +243,18 @@ def _check_cells(spec: TableSpec, where: str) -> None:
                                      "column or [defaults])", where=cell)
 
 
-def _gate(obj: Any, where: str, rows: Sequence[RowSpec], columns: Sequence[ColumnSpec],
-          defaults: dict) -> GateSpec:
+def _metric_column(spec: TableSpec, metric: str) -> int | None:
+    """Index of the first column of ``spec`` whose cells read ``metric`` (None: none)."""
+    return next((j for j, c in enumerate(spec.columns)
+                 if {**spec.defaults, **c.filters}.get("metric") == metric), None)
+
+
+def _gate(obj: Any, where: str, spec: TableSpec) -> GateSpec:
     if isinstance(obj, dict):  # TOML writes 80 for 80.0: accept integers as bounds
         obj = {k: float(v) if k in ("min", "max") and isinstance(v, int)
                and not isinstance(v, bool) else v for k, v in obj.items()}
     _check_keys(obj, _GATE_KEYS, where, required=("row", "metric"))
-    labels = [r.label for r in rows]
+    labels = [r.label for r in spec.rows]
     between = obj.get("between")
     named = [obj["row"], *(between or [])]
     bounds = [k for k in ("min", "max", "between") if k in obj]
@@ -261,7 +266,7 @@ def _gate(obj: Any, where: str, rows: Sequence[RowSpec], columns: Sequence[Colum
     missing = [n for n in named if n not in labels]
     if missing:
         raise InputError(f"no row labelled {missing[0]!r}", where=where)
-    if not any({**defaults, **c.filters}.get("metric") == obj["metric"] for c in columns):
+    if _metric_column(spec, obj["metric"]) is None:
         raise InputError(f"no column of metric {obj['metric']!r}", where=where)
     return GateSpec(row=obj["row"], metric=obj["metric"], min=obj.get("min"),
                     max=obj.get("max"), between=tuple(between) if between else None)
@@ -300,10 +305,8 @@ def parse_table(data: dict, where: str | Path) -> TableSpec:
         columns=tuple(columns), order=data.get("order", 1000), path=where,
         compare_to=data.get("compare_to"),
     )
-    rows = spec.rows
-    spec = replace(spec, gates=tuple(
-        _gate(g, f"{where}: gates[{i}]", rows, spec.columns, defaults)
-        for i, g in enumerate(data.get("gates", []))))
+    spec = replace(spec, gates=tuple(_gate(g, f"{where}: gates[{i}]", spec)
+                                     for i, g in enumerate(data.get("gates", []))))
     _check_cells(spec, where)
     if spec.compare_to is not None and spec.compare_to not in {
             spec.cell_filters(r, spec.columns[0]).get("method") for r in spec.rows}:
@@ -848,9 +851,7 @@ def compute_table(
         if verdict_header is not None:
             notes = (*notes, verdict_note(verdict_header.removeprefix("Verdict vs ")))
     gates = check_gates(spec, rows, registry)
-    notes = (*notes, *(f"Sanity gate {gate_word(ok)}: {name} "
-                       f"({'measured ' if ok is not None else ''}{got})"
-                       for name, ok, got in gates))
+    notes = (*notes, *(f"Sanity gate {gate_line(*g)}" for g in gates))
     return TableData(id=spec.id, title=spec.title, version=spec.version,
                      description=spec.description, row_header=spec.row_header,
                      columns=columns, rows=tuple(mark_best(rows)), notes=tuple(notes),
@@ -864,8 +865,7 @@ def check_gates(spec: TableSpec, rows: Sequence[Row], registry: Registry[MetricS
     (the run did not evaluate that method: a profile without the table's controls)."""
     out = []
     for g in spec.gates:
-        j = next(j for j, c in enumerate(spec.columns)
-                 if {**spec.defaults, **c.filters}.get("metric") == g.metric)
+        j = _metric_column(spec, g.metric)
         value = {r.label: (r.cells[j].ci.mean if r.cells[j].ci is not None else np.nan)
                  for r in rows}
         unit, _, name = _metric_info(g.metric, registry, [])
@@ -886,9 +886,12 @@ def check_gates(spec: TableSpec, rows: Sequence[Row], registry: Registry[MetricS
     return tuple(out)
 
 
-def gate_word(ok: bool | None) -> str:
-    """PASS, FAIL or NOT CHECKED (a gate whose rows have no value)."""
-    return "NOT CHECKED" if ok is None else ("PASS" if ok else "FAIL")
+def gate_line(name: str, ok: bool | None, got: str) -> str:
+    """One checked gate as printed under its table and in the run log: PASS, FAIL or NOT
+    CHECKED (a gate whose rows have no value), the check, the measured value."""
+    if ok is None:
+        return f"NOT CHECKED: {name} ({got})"
+    return f"{'PASS' if ok else 'FAIL'}: {name} (measured {got})"
 
 
 def _empty_results() -> pd.DataFrame:
