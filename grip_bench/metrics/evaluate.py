@@ -560,11 +560,12 @@ def _qs_contacts(pair: SequencePair, t: int) -> tuple | None:
 
 def quasi_static_frame(pair: SequencePair, t: int, mu: float = C.SIM_FRICTION,
                        axis: str | None = None) -> float:
-    """:func:`hold.can_hold` of frame ``t`` (1.0 or 0.0; NaN for a non-finite hand) with
+    """:func:`geometry.wrench.can_hold` of frame ``t`` (1.0 or 0.0; NaN for a non-finite hand) with
     friction ``mu`` against the world's gravity (``axis`` None: ``-g up``) or gravity along
     one of ``hold.AXES``, taken into the prediction's object frame. Cached per (frame, mu,
     direction); the cone wrenches per (frame, mu)."""
-    from .hold import can_hold, cone_wrenches, gravity_along
+    from ..geometry.wrench import can_hold, cone_wrenches
+    from .hold import gravity_along
 
     up = np.asarray(pair.options.up, np.float64)
     g = gravity_along(axis, up)

@@ -1,6 +1,6 @@
 """The hold test's physics on analytic cases: MuJoCo's friction with the hold test's contact
 settings is Coulomb's (a pinched box holds iff 2 mu N >= m g), the quasi-static force check
-(``hold.plan_forces``) reproduces the same bound, a good grasp ranks above its degradations,
+(``wrench.plan_forces``) reproduces the same bound, a good grasp ranks above its degradations,
 and a run is deterministic."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 from grip_bench.core import constants as C
+from grip_bench.geometry import wrench as W
 from grip_bench.metrics import hold as H
 
 SIDE = 0.04  # m, the pinched cube
@@ -59,7 +60,7 @@ def test_plan_forces_two_pads_analytic():
     normals = np.array([[-1.0, 0, 0], [1.0, 0, 0]])  # into the object
     weight = np.array([0.0, -2.0, 0.0])  # N
     for mu in (0.25, 0.5, 1.0, 3.0):
-        f = H.plan_forces(pts, normals, np.zeros(3), weight, mu)
+        f = W.plan_forces(pts, normals, np.zeros(3), weight, mu)
         normal = np.einsum("kc,kc->k", f, normals)
         assert normal == pytest.approx([2.0 / (2 * mu)] * 2, rel=1e-6)  # 2 mu N = m g
         assert f.sum(0) == pytest.approx(-weight, abs=1e-9)
@@ -72,7 +73,7 @@ def test_plan_forces_satisfies_its_constraints_on_random_contacts():
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     pts, normals = 0.03 * dirs, -dirs  # contacts all around a 3 cm ball
     com, load, mu = np.zeros(3), np.array([0.3, -1.0, 0.2]), 0.6
-    f = H.plan_forces(pts, normals, com, load, mu)
+    f = W.plan_forces(pts, normals, com, load, mu)
     assert f is not None
     assert f.sum(0) == pytest.approx(-load, abs=1e-7)
     assert np.cross(pts - com, f).sum(0) == pytest.approx(np.zeros(3), abs=1e-8)
@@ -84,8 +85,8 @@ def test_plan_forces_satisfies_its_constraints_on_random_contacts():
 def test_plan_forces_one_sided_contacts_cannot_hold():
     pts = np.array([[0.02, 0, 0], [0.02, 0.01, 0]])
     normals = np.array([[-1.0, 0, 0]] * 2)
-    assert H.plan_forces(pts, normals, np.zeros(3), np.array([0, -1.0, 0]), 1.0) is None
-    assert H.plan_forces(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(3),
+    assert W.plan_forces(pts, normals, np.zeros(3), np.array([0, -1.0, 0]), 1.0) is None
+    assert W.plan_forces(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(3),
                          np.array([0, -1.0, 0]), 1.0) is None
 
 

@@ -1,4 +1,4 @@
-"""The quasi-static hold check (``hold.can_hold``, metric ``hold_qs``): analytic grasps, an
+"""The quasi-static hold check (``wrench.can_hold``, metric ``hold_qs``): analytic grasps, an
 independent feasibility reference (non-negative least squares on the same friction-cone
 edges), and the metric on a grasp fixture: ground truth holds, the flat hand, a hand pushed
 deep into the object and a hand pulled off it do not."""
@@ -11,6 +11,7 @@ import pytest
 from grip_bench.core import constants as C
 from grip_bench.data.grab_io import read_grab
 from grip_bench.data.library import ObjectLibrary
+from grip_bench.geometry import wrench as W
 from grip_bench.metrics import hold as H
 from grip_bench.metrics import validity as V
 from grip_bench.metrics.evaluate import EvalOptions, evaluate_sequence
@@ -40,19 +41,19 @@ def _contacts(*faces):
 
 def test_a_pinch_holds_one_side_does_not_and_a_palm_below_supports():
     pinch = _contacts((0, 1.0), (0, -1.0))  # two fingers on opposite sides, gravity along y
-    assert H.can_hold(0.0, *pinch, np.zeros(3), LOAD, mu=1.0)
-    assert not H.can_hold(0.0, *_contacts((0, 1.0)), np.zeros(3), LOAD, mu=1.0)
-    assert not H.can_hold(0.0, *_contacts((1, 1.0)), np.zeros(3), LOAD)  # on top: only pushes
-    assert H.can_hold(0.0, *_contacts((1, -1.0)), np.zeros(3), LOAD)  # a palm underneath
+    assert W.can_hold(0.0, *pinch, np.zeros(3), LOAD, mu=1.0)
+    assert not W.can_hold(0.0, *_contacts((0, 1.0)), np.zeros(3), LOAD, mu=1.0)
+    assert not W.can_hold(0.0, *_contacts((1, 1.0)), np.zeros(3), LOAD)  # on top: only pushes
+    assert W.can_hold(0.0, *_contacts((1, -1.0)), np.zeros(3), LOAD)  # a palm underneath
     # frictionless pinch cannot hold a load along the pads
-    assert not H.can_hold(0.0, *pinch, np.zeros(3), LOAD, mu=0.0)
+    assert not W.can_hold(0.0, *pinch, np.zeros(3), LOAD, mu=0.0)
 
 
 def test_too_deep_or_no_contact_fails():
     pinch = _contacts((0, 1.0), (0, -1.0))
-    assert H.can_hold(C.HOLD_MAX_DEPTH, *pinch, np.zeros(3), LOAD)
-    assert not H.can_hold(C.HOLD_MAX_DEPTH + 1e-4, *pinch, np.zeros(3), LOAD)
-    assert not H.can_hold(0.0, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(3), LOAD)
+    assert W.can_hold(C.HOLD_MAX_DEPTH, *pinch, np.zeros(3), LOAD)
+    assert not W.can_hold(C.HOLD_MAX_DEPTH + 1e-4, *pinch, np.zeros(3), LOAD)
+    assert not W.can_hold(0.0, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(3), LOAD)
 
 
 def _feasible_lp(points, normals, com, load, mu, edges=C.HOLD_CONE_EDGES) -> bool:
@@ -93,12 +94,12 @@ def test_feasibility_matches_a_linear_programme_reference():
             continue
         load = rng.normal(size=3)
         mu = float(rng.choice([0.3, 1.0, 3.0]))
-        ours = H.can_hold(0.0, pts, nrm, np.zeros(3), load, mu)
+        ours = W.can_hold(0.0, pts, nrm, np.zeros(3), load, mu)
         verdicts.append(ours)
         agree.append(ours == _feasible_lp(pts, -nrm, np.zeros(3), load, mu))
         assert agree[-1], (trial, faces, mu)
         # and plan_forces (the force-minimising programme) finds forces exactly then
-        assert ours == (H.plan_forces(pts, -nrm, np.zeros(3), load, mu) is not None)
+        assert ours == (W.plan_forces(pts, -nrm, np.zeros(3), load, mu) is not None)
     assert len(agree) > 50 and 0 < sum(verdicts) < len(verdicts)  # both verdicts drawn
 
 
@@ -113,7 +114,7 @@ def test_contacts_on_a_sphere_agree_with_the_reference():
             d[:, 0] = np.abs(d[:, 0])
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         mu, load = float(rng.choice([0.5, 1.0, 3.0])), rng.normal(size=3)
-        ours = H.can_hold(0.0, 0.03 * d, d, np.zeros(3), load, mu)
+        ours = W.can_hold(0.0, 0.03 * d, d, np.zeros(3), load, mu)
         assert ours == _feasible_lp(0.03 * d, -d, np.zeros(3), load, mu), trial
         verdicts.append(ours)
     assert 0 < sum(verdicts) < len(verdicts)
@@ -185,7 +186,7 @@ def test_friction_and_gravity_direction_variants(fixture):
     # a palm-up pinch-free support: the analytic cube held from below passes only the
     # direction that presses it onto the palm
     pts, nrm = _contacts((1, -1.0))
-    held = [H.can_hold(0.0, pts, nrm, np.zeros(3), 0.064 * H.gravity_along(a, np.eye(3)[1]))
+    held = [W.can_hold(0.0, pts, nrm, np.zeros(3), 0.064 * H.gravity_along(a, np.eye(3)[1]))
             for a in H.AXES]
     assert held == [False, False, False, True, False, False]  # only "-y": onto the palm
 

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 GENERATOR_NAME = "SynthGRAB"
-GENERATOR_VERSION = "2.1"  # 2.1: hook grasps, regrasps in a third of one-handed use sequences
+GENERATOR_VERSION = "2.2"  # 2.1: hook grasps, regrasps in a third of one-handed use sequences;
+# 2.2: among grasps touching with the same parts, one that can hold the lifted object wins
 
 # GRAB's intents; "use" becomes an object-specific verb as in GRAB's file names.
 INTENTS = ("lift", "pass", "use", "offhand")
