@@ -8,8 +8,9 @@ copies); :func:`metric_validity` evaluates every level against the ground truth 
 :func:`~grip_bench.metrics.evaluate.evaluate_sequence`, and :func:`check_validity`
 compares the responses with the claims in :data:`EXPECTED` (docs/contract.md, "Metric
 validity"). Pairs without a claim carry their reason in :data:`NO_CLAIM` (non-physics
-metrics) or are simply measured (physics metrics, whose claims belong to their module;
-any metric id is tabulated and plotted, only claimed pairs are judged).
+metrics and the quasi-static hold check ``hold_qs``) or are simply measured (the MuJoCo
+metrics and ``hold_qs``'s table-only variants, on two frames per hand; any metric id is
+tabulated and plotted, only claimed pairs are judged).
 
 Random degradations draw once per (sequence, degradation, seed) and scale that draw with
 the level, so a larger level is the same perturbation, larger: responses are curves, not
@@ -324,6 +325,10 @@ EXPECTED: dict[tuple[str, str], str] = {
     ("jitter", "jitter"): "up",
     ("jitter", "accel_err"): "up",
     ("jitter", "contact_ratio_strict"): "down",
+    # The quasi-static hold check (cheap: no simulation, so judged, unlike the MuJoCo
+    # metrics): a hand moved rigidly off its grasp or with its fingers bent away from it
+    # loses the contacts that balance the weight, or sinks past the 5 mm depth rule (push).
+    **{(d, "hold_qs"): "down" for d in ("wrist", "offset", "open", "push", "jitter")},
 }
 
 # Why the other (degradation, non-physics metric) pairs claim nothing: their response
@@ -352,6 +357,12 @@ NO_CLAIM: dict[tuple[str, str], str] = {
                       "pushed in gain: net small below the GT's own depth",
     ("jitter", "pen_depth"): "as iv",
     ("jitter", "contact_ratio"): _WRAP,
+    ("noise", "hold_qs"): "a new random finger pose every frame: some hold by chance, and "
+                          "two tested frames per hand cannot order the levels",
+    ("pull", "hold_qs"): _WRAP,
+    ("close", "hold_qs"): "closing first moves the fingers' contacts (the grasp may stop "
+                          "balancing), then sinks them in, adding contacts all round until "
+                          "the 5 mm depth rule fails the frame",
 }
 
 # Metrics whose optimum is not the ground truth by construction, so "ground truth best" is

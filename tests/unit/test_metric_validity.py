@@ -177,7 +177,7 @@ def test_levels_can_be_overridden_and_zero_is_always_measured():
 def test_every_non_physics_metric_has_a_claim_or_a_reason_per_degradation():
     for deg in V.DEGRADATIONS:
         for m in METRICS.names():
-            if m in PHYSICS_METRICS:
+            if m in PHYSICS_METRICS and m != "hold_qs":
                 continue
             pair = (deg, m)
             assert (pair in V.EXPECTED) != (pair in V.NO_CLAIM), pair
@@ -226,3 +226,19 @@ def test_check_validity_catches_broken_claims_and_judges_only_claims():
     assert "cc: a degraded input scores better than the ground truth" in bad
     assert not any(b.startswith(("mpvpe", "sim_stable")) for b in bad)
     assert len(bad) == 4
+
+
+def test_hold_check_claims_hold_on_smoke_data(data):
+    """The quasi-static hold check is judged (it needs no simulation): on the two fixture
+    grasps, every degradation it claims to measure lowers it, and ground truth is best."""
+    root, _, _ = data
+    df = V.metric_validity(str(root), "test", sequences=2, seed=0,
+                           options=EvalOptions(metrics=("hold_qs",), max_physics_frames=2))
+    assert set(df["metric"]) == {"hold_qs"}
+    assert V.check_validity(df) == []
+    judged = {d for d, e in zip(df["degradation"], df["expected"], strict=True) if e}
+    assert judged == {d for d, m in V.EXPECTED if m == "hold_qs"}
+    top = df[df["level"] == 0]["value"]
+    assert np.all(top == 100.0)
+    last = df.groupby("degradation")["value"].last()
+    assert (last[sorted(judged)] < 100.0).all()
