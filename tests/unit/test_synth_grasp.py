@@ -73,3 +73,48 @@ def test_hand_rotation_maps_fingers_and_palm():
         np.testing.assert_allclose(R @ np.array(fh), f, atol=1e-12)
         np.testing.assert_allclose(R @ np.array([0.0, -1.0, 0.0]), n, atol=1e-12)
         assert np.isclose(np.linalg.det(R), 1.0)
+
+
+@pytest.mark.parametrize("name,side", [("cylindermedium", "right"), ("mug", "right"),
+                                       ("cubesmall", "left"), ("binoculars", "right")])
+def test_chosen_grasp_can_hold_the_lifted_object(name, side):
+    """SynthGRAB 2.2 prefers candidates whose contacts can hold the object under the lift's
+    gravity (HOLD_SCORE); checked here independently of the search's least-squares test:
+    exact distances, and HiGHS's linear programme on the same contacts (plan_forces)."""
+    from grip_bench.core.constants import HOLD_TOUCH
+    from grip_bench.geometry.wrench import plan_forces
+
+    torch.set_num_threads(1)
+    obj, df, gs = _synth(name)
+    g = gs.search(side, _approach_dirs(side), np.array([0.0, 0.0, 1.0]), np.random.default_rng(1))
+    hand = G._light_hand(side, 1.0)[0]
+    local = hand.to_local(torch.as_tensor(g.hand_pose))[None].numpy()
+    v, _ = G._pose(hand, g.R[None], g.t[None], local)
+    sd, closest, normal = df.exact_contacts(v[0])
+    touch = sd <= HOLD_TOUCH
+    com = np.asarray(obj.mesh.center_mass, float)
+    forces = plan_forces(closest[touch], -normal[touch], com, np.array([0.0, -1.0, 0.0]), 1.0)
+    assert forces is not None
+    assert gs._holds(v[0], sd, 1.0)
+
+
+def _chosen_holds(name, side):
+    obj, df, gs = _synth(name)
+    g = gs.search(side, _approach_dirs(side), np.array([0.0, 0.0, 1.0]), np.random.default_rng(1))
+    hand = G._light_hand(side, 1.0)[0]
+    v, _ = G._pose(hand, g.R[None], g.t[None], hand.to_local(torch.as_tensor(g.hand_pose))[None]
+                   .numpy())
+    return g.contact_parts, gs._holds(v[0], df.exact_signed_distance(v[0]), 1.0)
+
+
+def test_hold_score_picks_the_holding_grasp_among_the_same_parts(monkeypatch):
+    """A small cube's precision pinch: without the hold term (SynthGRAB 2.1) the best-scoring
+    candidate touches with thumb, index and middle but cannot hold the cube lifted at mu = 1;
+    with it, a candidate touching with the same parts that can hold wins."""
+    torch.set_num_threads(1)
+    monkeypatch.setattr(G, "HOLD_SCORE", 0.0)
+    parts0, held0 = _chosen_holds("cubesmall", "right")
+    monkeypatch.setattr(G, "HOLD_SCORE", 1.0)
+    parts1, held1 = _chosen_holds("cubesmall", "right")
+    assert not held0 and held1
+    assert parts0 == parts1 == ("thumb", "index", "middle")

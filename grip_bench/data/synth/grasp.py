@@ -66,7 +66,7 @@ PART_SCORE = np.array([0.1, 1.0, 1.0, 1.0, 0.6, -0.3])
 # Score of a candidate whose contacts can hold the object lifted off the table (the
 # quasi-static check of the hold_qs metric at mu = 1): as much as a main finger in contact, so
 # a grasp that holds wins among those touching with the same parts, without trading a finger
-# for it. Measured on the smoke data (docs/physics_hold.md): weights 0.5 and 1.0 choose the
+# for it. Measured on the smoke data (docs/synthgrab.md): weights 0.5 and 1.0 choose the
 # same grasps (ground truth held in 81.7 % of tested frames, was 65.0 %; right-hand thumb,
 # index, middle and ring shares within 0.6 point of before, palm 15.5 -> 21.1 % and pinky
 # 29.5 -> 38.9 %, nearer GRAB's 24 and 39); 1.5, or keeping only candidates that hold, drops
