@@ -119,3 +119,14 @@ def can_hold(depth: float, closest: np.ndarray, normals: np.ndarray, com: np.nda
     if wrench is None:
         wrench = cone_wrenches(closest, -np.asarray(normals), com, mu)[1]
     return can_balance(wrench, load)
+
+
+def hold_contacts(field, points: np.ndarray, sd: np.ndarray
+                  ) -> tuple[float, np.ndarray, np.ndarray]:
+    """The hold check's contacts of a hand: of its ``points`` (V, 3) m at signed distances
+    ``sd`` (V,) m (exact below ``HOLD_TOUCH``) to the object of ``field`` (a
+    ``DistanceField``), those within ``HOLD_TOUCH``, outside or inside. Returns the
+    deepest point's depth (m, ``-min sd``), their closest surface points (K, 3) and the
+    object's outward pseudonormals there (K, 3): :func:`can_hold`'s first three inputs."""
+    _, closest, normal = field.exact_contacts(points[sd <= C.HOLD_TOUCH])
+    return -float(sd.min()), closest, normal

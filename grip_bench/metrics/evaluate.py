@@ -540,6 +540,7 @@ def _qs_contacts(pair: SequencePair, t: int) -> tuple | None:
     pseudonormals (K, 3), the centre of mass (3,), the mass (kg), and the prediction's
     object rotation (3, 3) (row-vector convention); None for a non-finite hand. Every
     predicted hand the GT holds with at ``t`` is in (a bimanual frame is one test)."""
+    from ..geometry.wrench import hold_contacts
     from .physics import _object_inertia
 
     key = (t, "quasi-static contacts")
@@ -550,10 +551,8 @@ def _qs_contacts(pair: SequencePair, t: int) -> tuple | None:
         if not np.isfinite(sd).all():
             pair._sims[key] = None
             return None
-        # closest surface points and outward pseudonormals of the contacts only
-        _, closest, normal = pair.field.exact_contacts(local[sd <= C.HOLD_TOUCH])
         mass, com, _ = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)
-        pair._sims[key] = (-float(sd.min()), closest, normal, com, mass,
+        pair._sims[key] = (*hold_contacts(pair.field, local, sd), com, mass,
                            pair.pred_rotations[t])
     return pair._sims[key]
 

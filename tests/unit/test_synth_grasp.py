@@ -20,6 +20,13 @@ def _approach_dirs(side):
     return np.array(out)
 
 
+def _posed(g, side):
+    """World vertices (V, 3) of grasp ``g``'s closed hand, in the object's frame."""
+    hand = G._light_hand(side, 1.0)[0]
+    local = hand.to_local(torch.as_tensor(g.hand_pose))[None].numpy()
+    return G._pose(hand, g.R[None], g.t[None], local)[0][0]
+
+
 def _synth(name):
     obj = make_instance(name, np.random.default_rng(0), 0)
     df = DistanceField(obj.mesh)
@@ -42,14 +49,13 @@ def test_grasp_holds_without_penetration(name, side, kind):
     g = gs.search(side, _approach_dirs(side), np.array([0.0, 0.0, 1.0]), np.random.default_rng(1))
     assert g is not None and g.kind == kind and g.side == side
     hand = G._light_hand(side, 1.0)[0]
-    local = hand.to_local(torch.as_tensor(g.hand_pose))[None].numpy()
-    v, _ = G._pose(hand, g.R[None], g.t[None], local)
-    sd = df.exact_signed_distance(v[0])  # independent of the grid used during the search
+    v = _posed(g, side)
+    sd = df.exact_signed_distance(v)  # independent of the grid used during the search
     assert -sd.min() <= G.MAX_PENETRATION + 2e-4
     parts = hand.part_labels
     touching = {p for p in range(6) if sd[parts == p].min() <= CONTACT_THRESHOLD}
     assert 1 in touching and touching & {2, 3, 4, 5}  # thumb plus at least one finger
-    assert v[0][:, 1].min() > -obj.rest_height  # above the table top
+    assert v[:, 1].min() > -obj.rest_height  # above the table top
     assert bool(hand.within_limits(torch.as_tensor(g.hand_pose)))
     np.testing.assert_allclose(g.R @ g.R.T, np.eye(3), atol=1e-9)
 
@@ -87,24 +93,20 @@ def test_chosen_grasp_can_hold_the_lifted_object(name, side):
     torch.set_num_threads(1)
     obj, df, gs = _synth(name)
     g = gs.search(side, _approach_dirs(side), np.array([0.0, 0.0, 1.0]), np.random.default_rng(1))
-    hand = G._light_hand(side, 1.0)[0]
-    local = hand.to_local(torch.as_tensor(g.hand_pose))[None].numpy()
-    v, _ = G._pose(hand, g.R[None], g.t[None], local)
-    sd, closest, normal = df.exact_contacts(v[0])
+    v = _posed(g, side)
+    sd, closest, normal = df.exact_contacts(v)
     touch = sd <= HOLD_TOUCH
     com = np.asarray(obj.mesh.center_mass, float)
     forces = plan_forces(closest[touch], -normal[touch], com, np.array([0.0, -1.0, 0.0]), 1.0)
     assert forces is not None
-    assert gs._holds(v[0], sd, 1.0)
+    assert gs._holds(v, sd, 1.0)
 
 
 def _chosen_holds(name, side):
     obj, df, gs = _synth(name)
     g = gs.search(side, _approach_dirs(side), np.array([0.0, 0.0, 1.0]), np.random.default_rng(1))
-    hand = G._light_hand(side, 1.0)[0]
-    v, _ = G._pose(hand, g.R[None], g.t[None], hand.to_local(torch.as_tensor(g.hand_pose))[None]
-                   .numpy())
-    return g.contact_parts, gs._holds(v[0], df.exact_signed_distance(v[0]), 1.0)
+    v = _posed(g, side)
+    return g.contact_parts, gs._holds(v, df.exact_signed_distance(v), 1.0)
 
 
 def test_hold_score_picks_the_holding_grasp_among_the_same_parts(monkeypatch):

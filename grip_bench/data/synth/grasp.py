@@ -46,7 +46,7 @@ import torch
 
 from ...bodies.hand import ProceduralHand
 from ...bodies.layouts import HAND_PARTS
-from ...core.constants import CONTACT_THRESHOLD, HOLD_TOUCH, SIM_FRICTION
+from ...core.constants import CONTACT_THRESHOLD, SIM_FRICTION
 from ...geometry.distance import DistanceField
 from ...geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
@@ -876,13 +876,9 @@ class GraspSynthesizer:
         quasi-static check of the ``hold_qs`` metric (``geometry.wrench.can_hold``, mu =
         ``SIM_FRICTION``) against gravity along the object's -y (+y when it rests upside
         down). The load's size does not matter to it, only its direction."""
-        from ...geometry.wrench import can_hold
+        from ...geometry.wrench import can_hold, hold_contacts
 
-        touch = sd <= HOLD_TOUCH
-        if not touch.any():
-            return False
-        _, closest, normal = self.df.exact_contacts(v[touch])
-        return can_hold(-float(sd.min()), closest, normal, self._com, np.array([0.0, -up, 0.0]),
+        return can_hold(*hold_contacts(self.df, v, sd), self._com, np.array([0.0, -up, 0.0]),
                         SIM_FRICTION)
 
     @functools.cached_property
