@@ -202,8 +202,14 @@ def hand_object_distance(
     """``signed_object_distance(library, seq, to_world(local, rot, transl), exact_cells)``
     ``(T, N)`` (m) bit for bit, of hand-frame points ``local (N, 3)`` at wrists ``rot (T, 3,
     3)``, ``transl (T, 3)``, without the world array (:func:`hand_points_in_object`)."""
-    obj = hand_points_in_object(local, rot, transl, seq.object_rotations(), seq.object["transl"])
-    return sensor_distance(library.field(seq.obj_name), obj, exact_cells)
+    obj_rot, obj_transl = seq.object_rotations(), seq.object["transl"]
+    field = library.field(seq.obj_name)
+    if all(np.asarray(a).dtype == np.float64 for a in (local, rot, transl, obj_rot, obj_transl)):
+        # one compiled pass, the same values (DistanceField.moved_signed_distance)
+        return field.moved_signed_distance(local, rot, transl, obj_rot, obj_transl, exact_cells)
+    # float32 frames (e.g. a caller's torch wrists) round in float32 on the way: keep that path
+    obj = hand_points_in_object(local, rot, transl, obj_rot, obj_transl)
+    return sensor_distance(field, obj, exact_cells)
 
 
 def object_distance(
@@ -412,84 +418,24 @@ def stage_one_rigid(
     from hand -> world -> object); what the stream runs per frame. ``scale``: the hand scale.
     """
     amb_pts, prox_pts = hand_sensor_points(float(scale), ambient)
-    amb_bounds, prox_bounds = _sensor_bounds(float(scale), ambient)
-    d = np.maximum(_rigid_distance(field, M, c, prox_pts, prox_bounds, True), 0.0)
+    d = np.maximum(_rigid_distance(field, M, c, prox_pts, True), 0.0)
     prox = proximity_sensor(d)
     if ambient == "none":
         return StageOne(np.zeros((len(M), 2, 0), np.float32), prox, d.mean(axis=2))
-    sd = _rigid_distance(field, M, c, amb_pts, amb_bounds, False)
+    sd = _rigid_distance(field, M, c, amb_pts, False)
     amb = (attention(np.maximum(sd, 0.0), C.AMBIENT_DECAY) if ambient == "distance"
            else sd < 0).astype(np.float32)
     return StageOne(amb, prox, d.mean(axis=2))
 
 
-# below this many points (a streamed frame has 2 x 1,123) the group boxes cost more than the
-# per-point box tests they spare (measured break-even ~16 frames of both hands' ambient points)
-_GROUPED_MIN_POINTS = 32768
-# relative slack of the boxes of moved point sets: far above float64 rounding of the points
-# (~1e-16 relative), far below what would make a box straddle a grid's box needlessly
-_BOX_SLACK = 1e-9
-
-
-@functools.lru_cache(maxsize=16)
-def _sensor_bounds(scale: float, ambient: str) -> tuple[tuple[np.ndarray, ...], ...]:
-    """Bounds of :func:`hand_sensor_points` (ambient, proximity), per hand in its wrist frame:
-    each a tuple of the box ``mid, half (2, 3)`` and a ball ``centre (2, 3)``, ``radius (2,)``
-    (m) holding every point, read-only (the ball's centre from Badoiu-Clarkson iterations,
-    near the smallest ball's; its radius is the distance to the farthest point)."""
-    out = []
-    for pts in hand_sensor_points(scale, ambient):
-        if pts.shape[1] == 0:
-            out.append((np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 3)), np.zeros(2)))
-            continue
-        lo, hi = pts.min(axis=1), pts.max(axis=1)
-        centre = pts.mean(axis=1)
-        for i in range(1, 301):  # move towards the farthest point by 1 / (i + 1)
-            far = pts[np.arange(2), np.argmax(((pts - centre[:, None]) ** 2).sum(-1), axis=1)]
-            centre = centre + (far - centre) / (i + 1)
-        radius = np.sqrt(((pts - centre[:, None]) ** 2).sum(-1)).max(axis=1)
-        out.append(((lo + hi) / 2, (hi - lo) / 2, centre, radius))
-    for a in (a for bounds in out for a in bounds):
-        a.flags.writeable = False  # shared by every caller
-    return tuple(out)
-
-
-def _rigid_boxes(
-    M: np.ndarray, c: np.ndarray, bounds: tuple[np.ndarray, ...]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Object-frame boxes ``lo, hi (T, 2, 3)`` (m) holding both hands' points moved by their
-    maps ``M (T, 2, 3, 3)``, ``c (T, 2, 3)``, from their wrist-frame ``bounds``
-    (:func:`_sensor_bounds`): the moved box (``M mid + c`` +- ``|M| half``) cut by the moved
-    ball's box (``M centre + c`` +- ``||M||_2 radius``, the norm bounded by
-    ``sqrt(||M^T M||_inf)``, exact for any ``M``), widened by ``_BOX_SLACK``."""
-    mid, half, centre, radius = bounds
-    M = np.asarray(M, np.float64)
-    box_mid = np.einsum("thij,hj->thi", M, mid) + c
-    box_ext = np.einsum("thij,hj->thi", np.abs(M), half)
-    ball_mid = np.einsum("thij,hj->thi", M, centre) + c
-    gram = np.abs(np.swapaxes(M, -1, -2) @ M).sum(-1).max(-1)  # ||M^T M||_inf (T, 2)
-    ball_ext = (np.sqrt(gram) * radius)[..., None]
-    slack = _BOX_SLACK * (1.0 + np.abs(c).max(-1, keepdims=True)
-                          + np.abs(np.stack([mid, centre])).max() + half.max() + radius.max())
-    lo = np.maximum(box_mid - box_ext, ball_mid - ball_ext) - slack
-    hi = np.minimum(box_mid + box_ext, ball_mid + ball_ext) + slack
-    return lo, hi
-
-
 def _rigid_distance(
-    field: DistanceField, M: np.ndarray, c: np.ndarray, local: np.ndarray,
-    bounds: tuple[np.ndarray, ...], exact_cells: bool,
+    field: DistanceField, M: np.ndarray, c: np.ndarray, local: np.ndarray, exact_cells: bool,
 ) -> np.ndarray:
     """``field.signed_distance(apply_rigid(M, c, local), far="coarse", exact_cells)``
-    ``(T, 2, N)`` (m) bit for bit, each hand and frame's points a group whose box
-    (:func:`_rigid_boxes`) spares most per-point box tests of the far field."""
+    ``(T, 2, N)`` (m)."""
     T, N = len(M), local.shape[1]
-    q = apply_rigid(M, c, local).reshape(-1, N, 3)
-    if q.size < 3 * _GROUPED_MIN_POINTS:
-        return sensor_distance(field, q, exact_cells).reshape(T, 2, N)
-    lo, hi = _rigid_boxes(M, c, bounds)
-    return field.signed_distance_grouped(q, lo.reshape(-1, 3), hi.reshape(-1, 3),
-                                         exact_cells).reshape(T, 2, N)
+    q = apply_rigid(M, c, local).reshape(-1, 3)
+    return sensor_distance(field, q, exact_cells).reshape(T, 2, N)
 
 
 def ambient_sensor(

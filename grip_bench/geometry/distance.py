@@ -16,8 +16,8 @@ pseudonormals, robust on watertight meshes).
 
 from __future__ import annotations
 
-import functools
 import math
+from typing import TYPE_CHECKING
 
 import igl
 import numpy as np
@@ -26,13 +26,14 @@ import torch.nn.functional as F
 import trimesh
 
 from grip_bench.core import constants
-from grip_bench.core.errors import InputError
+
+if TYPE_CHECKING:  # numba costs ~0.3 s to import: loaded on the first grid read
+    from .gridread import GridStack
 
 __all__ = ["DistanceField", "grid_signed_distance_many"]
 
 _CHUNK = 1 << 18  # points per query chunk: bounds the temporaries of huge batched calls
 _BOX_MARGIN = 1e-3  # m; exact queries this far outside the mesh's bounding box skip the sign test
-_TILE = 64  # points per row of the vectorised grid transform (_read32)
 # nodes per slab of the grid build (_grid_arrays): its float64 temporaries, ~0.3 kB a node at
 # most, scale with a slab rather than the grid (a memory budget, not a protocol constant)
 _SLAB_NODES = 1 << 19
@@ -433,8 +434,9 @@ class DistanceField:
         point, exact beyond the last: ~10x cheaper than exact, sub-mm error beyond the fine
         grid (trilinear over cells at least 3 cm from the surface), for the sensor features.
         ``exact_cells=False`` (with ``"coarse"`` only) also reads the fine grid's unreliable
-        cells by interpolation (errors up to ~spacing / 4 there, 3x cheaper). Points in groups
-        with known bounding boxes: :meth:`signed_distance_grouped` (the same values).
+        cells by interpolation (errors up to ~spacing / 4 there, 3x cheaper). ``"coarse"`` runs
+        compiled (``geometry.gridread``); points given in moving frames:
+        :meth:`moved_signed_distance` (the same values).
         """
         if far not in ("exact", "bound", "coarse"):
             raise ValueError(f"far must be 'exact', 'bound' or 'coarse', got {far!r}")
@@ -460,38 +462,69 @@ class DistanceField:
             d[exact] = self._exact_values(q[exact])
         return d
 
-    def signed_distance_grouped(
-        self, points: np.ndarray, lo: np.ndarray, hi: np.ndarray, exact_cells: bool = True
-    ) -> np.ndarray:
-        """``signed_distance(points, far="coarse", exact_cells)`` ``(G, n)`` float64 (m) of
-        points ``(G, n, 3)`` (as float64) given in groups, each with a box ``lo, hi (G, 3)`` (m)
-        that holds all its points: bit for bit the same values.
-
-        The boxes only let whole groups skip the per-point box tests whose outcome they prove
-        (a group inside a grid's box has no point beyond it; a group disjoint from it has
-        none in it); which grid answers each point does not change. The caller guarantees
-        ``lo[g] <= points[g, i] <= hi[g]`` (e.g. a fixed point set moved by a rigid map, its
-        box widened by the map's rounding); a box that misses a point of its group gives
-        wrong values for it.
-        """
-        p = np.asarray(points, dtype=np.float64)
-        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-        if p.ndim != 3 or p.shape[2] != 3 or lo.shape != (len(p), 3) or hi.shape != lo.shape:
-            raise InputError(f"expected points (G, n, 3) with lo, hi (G, 3), got "
-                             f"{p.shape}, {lo.shape}, {hi.shape}", "signed_distance_grouped")
-        G, n = p.shape[:2]
-        out = np.empty((G, n))
-        step = max(1, _CHUNK // max(n, 1))  # whole groups per chunk
-        for s in range(0, G, step):
-            q = np.ascontiguousarray(p[s : s + step]).reshape(-1, 3)
-            levels = self._group_levels(q, n, lo[s : s + step], hi[s : s + step])
-            out[s : s + step] = self._read_levels(q, levels, exact_cells).reshape(-1, n)
+    def _tiered(self, q: np.ndarray, exact_cells: bool) -> np.ndarray:
+        """``signed_distance(q, far="coarse")`` ``(N,)``: one compiled pass decides each
+        point's grid and reads it (``geometry.gridread``), then the exact path answers the
+        points it flagged."""
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        out, exact, _ = self._read_grids(q, exact_cells)
+        if exact.any():
+            out[exact] = self._exact_values(q[exact])
         return out
 
-    def _tiered(self, q: np.ndarray, exact_cells: bool) -> np.ndarray:
-        """``signed_distance(q, far="coarse")`` ``(N,)``: each point's grid is decided first
-        (``_levels``), then each grid reads only its own points, in one call."""
-        return self._read_levels(q, self._levels(q), exact_cells)
+    def _read_grids(self, q: np.ndarray, exact_cells: bool
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Grid values ``(N,)``, exact-path flags ``(N,)`` and levels ``(N,)`` int8 of
+        float64 points ``q (N, 3)`` (``gridread.read_points``)."""
+        from .gridread import read_points
+
+        n = len(q)
+        out, exact, levels = np.empty(n), np.empty(n, np.bool_), np.empty(n, np.int8)
+        read_points(q, *self.grid_stack().args(), exact_cells, out, exact, levels)
+        return out, exact, levels
+
+    def moved_signed_distance(
+        self, local: np.ndarray, rot: np.ndarray, transl: np.ndarray, obj_rot: np.ndarray,
+        obj_transl: np.ndarray, exact_cells: bool = True,
+    ) -> np.ndarray:
+        """``signed_distance(sensors.hand_points_in_object(local, rot, transl, obj_rot,
+        obj_transl), far="coarse", exact_cells)`` ``(T, N)`` (m) bit for bit, in one
+        compiled pass: frame-local points ``local (N, 3)``, their frames ``rot (T, 3, 3)``,
+        ``transl (T, 3)`` (``world = rot p + transl``), GRAB's row-vector object rotations
+        ``obj_rot (T, 3, 3)`` and translations ``obj_transl (T, 3)``, all float64."""
+        from .gridread import read_moved_points
+
+        args = [np.ascontiguousarray(a, dtype=np.float64)
+                for a in (local, rot, transl, obj_rot, obj_transl)]
+        T, N = len(args[1]), len(args[0])
+        out, exact, levels = np.empty(T * N), np.empty(T * N, np.bool_), np.empty(T * N, np.int8)
+        q = np.empty((T * N, 3))
+        read_moved_points(*args, *self.grid_stack().args(), exact_cells, out, exact, levels, q)
+        if exact.any():
+            out[exact] = self._exact_values(q[exact])
+        return out.reshape(T, N)
+
+    def grid_stack(self) -> GridStack:
+        """This field's grids in the compiled reads' layout (``gridread.GridStack``), built
+        once; it shares the fine grid's memory."""
+        if getattr(self, "_stack", None) is None:
+            from .gridread import GridStack
+
+            tiers = self._far_tiers()
+            lo, hi = self._box_arrays()
+            vols = [self._vol] + [t._vol for t in tiers]
+            flat = [t._vol.reshape(-1).numpy() for t in tiers]
+            self._stack = GridStack(
+                lo=lo, hi=hi, fine=self._vol.reshape(-1).numpy(),
+                tiers=np.concatenate(flat) if flat else np.zeros(0, np.float32),
+                offsets=np.cumsum([0] + [len(f) for f in flat]).astype(np.int64),
+                dims=np.array([v.shape[2:] for v in vols], np.int64),
+                scale=np.stack([self._scale.numpy()] + [t._scale.numpy() for t in tiers]),
+                shift=np.stack([self._shift.numpy()] + [t._shift.numpy() for t in tiers]),
+                trusted=self._trusted.reshape(-1).numpy(),
+                tdims=np.array(self._trusted.shape[2:], np.int64),
+                cell=self._cell_scale.numpy())
+        return self._stack
 
     def _boxes(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """The node boxes ``(lo (3,), hi (3,))`` of the fine grid, then of each far tier: a
@@ -504,40 +537,7 @@ class DistanceField:
     def _levels(self, q: np.ndarray) -> np.ndarray:
         """Each point's level ``(N,)`` int8: the index in ``_boxes`` of the first box that
         holds it (0: the fine grid, k: far tier k), ``len(_boxes)`` beyond all of them."""
-        return _first_box(q, self._boxes(), 0, len(self._boxes()))
-
-    def _group_levels(self, q: np.ndarray, n: int, glo: np.ndarray, ghi: np.ndarray) -> np.ndarray:
-        """``_levels(q)`` ``(G * n,)`` of points ``q (G * n, 3)`` in groups of ``n`` with boxes
-        ``glo, ghi (G, 3)``: per-point box tests only where a group's box straddles a grid's.
-
-        A group's points are all outside every grid box its box is disjoint from, and all
-        inside one its box lies in; so its points' levels lie in ``[first, stop]`` with
-        ``first`` the first box it is not disjoint from and ``stop`` the first box it lies
-        in (``len(_boxes)`` if none): one level for the whole group when ``first == stop``,
-        else the point tests of boxes ``first .. stop - 1`` alone.
-        """
-        boxes = self._boxes()
-        blo, bhi = self._box_arrays()  # (nb, 3) each
-        nb = len(boxes)
-        glo, ghi = glo[:, None], ghi[:, None]  # (G, 1, 3) against (nb, 3)
-        inside = np.all(glo >= blo, axis=2) & np.all(ghi <= bhi, axis=2)  # (G, nb)
-        meets = ~(np.any(ghi < blo, axis=2) | np.any(glo > bhi, axis=2))
-        # the first box met / holding the group, nb where none
-        first = np.where(meets.any(axis=1), np.argmax(meets, axis=1), nb).astype(np.int8)
-        stop = np.where(inside.any(axis=1), np.argmax(inside, axis=1), nb).astype(np.int8)
-        levels = np.repeat(first, n)
-        mixed = first < stop
-        if mixed.any():
-            # few distinct (first, stop) pairs (at most nb^2): one pass over each one's points
-            pattern = first.astype(np.int16) * (nb + 1) + stop
-            grouped = q.reshape(len(first), n, 3)
-            per_group = levels.reshape(len(first), n)
-            for key in np.unique(pattern[mixed]):
-                g = np.flatnonzero(mixed & (pattern == key))
-                pts = np.take(grouped, g, axis=0).reshape(-1, 3)
-                per_group[g] = _first_box(pts, boxes, int(first[g[0]]),
-                                          int(stop[g[0]])).reshape(len(g), n)
-        return levels
+        return self._read_grids(np.ascontiguousarray(q, dtype=np.float64), False)[2]
 
     def _box_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """``_boxes`` as two ``(nb, 3)`` arrays of lower and upper corners."""
@@ -546,38 +546,6 @@ class DistanceField:
             self._level_box_arrays = (np.stack([b[0] for b in boxes]),
                                       np.stack([b[1] for b in boxes]))
         return self._level_box_arrays
-
-    def _read_levels(self, q: np.ndarray, levels: np.ndarray, exact_cells: bool) -> np.ndarray:
-        """Signed distances ``(N,)`` of points ``q (N, 3)`` at their ``levels`` (``_levels``):
-        the fine grid (with its exact path unless ``exact_cells`` is False), the far tiers'
-        trilinear values, the exact path beyond the last; one read per level."""
-        out = np.empty(len(q))
-        tiers = self._far_tiers()
-        q32 = None
-        for level in range(len(tiers) + 2):
-            at = levels == level  # (not np.bincount: 10x slower on int8 levels)
-            count = np.count_nonzero(at)
-            if count == 0:
-                continue
-            if count == len(q):  # one level holds every point: no gather
-                idx, take = slice(None), (lambda a: a)
-            else:
-                idx = np.flatnonzero(at)
-                # np.take along axis 0: ~6x faster than fancy indexing of (N, 3) rows
-                take = functools.partial(np.take, indices=idx, axis=0)
-            if level == 0:
-                near = take(q)
-                out[idx] = (
-                    self._near_first(near, "exact") if exact_cells else self.interpolated(near)
-                )
-            elif level <= len(tiers):
-                if q32 is None:  # float32 once: the precision every grid is read in
-                    q32 = q.astype(np.float32)
-                tier = tiers[level - 1]
-                out[idx] = _read32(tier._vol, tier._scale_rows, tier._shift_rows, take(q32))
-            else:
-                out[idx] = self._exact_values(take(q))
-        return out
 
     def _far_tiers(self) -> list[_FarGrid]:
         """The far-field grids of ``SDF_FAR_TIERS``, built on first use (~1 s per object)."""
@@ -702,37 +670,6 @@ def _outside_cols(cols: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarra
     return out
 
 
-def _first_box(q: np.ndarray, boxes: list, first: int, stop: int) -> np.ndarray:
-    """Levels ``(N,)`` int8 of points ``q (N, 3)`` known to lie outside ``boxes[:first]`` and
-    inside ``boxes[stop]`` (or beyond all when ``stop == len(boxes)``): the index of the first
-    box of ``boxes[first:stop]`` that holds each point, else ``stop``."""
-    levels = np.full(len(q), stop, np.int8)
-    # two or more boxes over the same points: one contiguous copy of the columns pays off
-    cols = np.ascontiguousarray(q.T) if stop - first > 1 else q.T
-    for b in range(stop - 1, first - 1, -1):  # last box first, so the first one wins
-        np.copyto(levels, np.int8(b), where=~_outside_cols(cols, *boxes[b]))
-    return levels
-
-
-def _read32(vol: torch.Tensor, scale: np.ndarray, shift: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``_read`` of float32 points ``p (N, 3)`` (overwritten): trilinear values ``(N,)`` float32.
-
-    ``scale``, ``shift`` ``(3 * _TILE,)``: the float32 transform tiled ``_TILE`` times.
-    ``u = p * scale + shift`` in float32 as ``_read`` computes it (the same two roundings per
-    coordinate), over rows of ``_TILE`` points: a long contiguous inner loop, 2x faster than
-    broadcasting a (3,) vector over (N, 3).
-    """
-    body = len(p) // _TILE * _TILE
-    rows = p[:body].reshape(-1, 3 * _TILE)
-    rows *= scale
-    rows += shift
-    tail = p[body:]
-    tail *= scale[:3]
-    tail += shift[:3]
-    vals = F.grid_sample(vol, torch.from_numpy(p).view(1, 1, 1, -1, 3), align_corners=True)
-    return vals.view(-1).numpy()
-
-
 def _read(vol: torch.Tensor, scale: torch.Tensor, shift: torch.Tensor, q: np.ndarray) -> np.ndarray:
     """Trilinear values ``(N,)`` float64 of a ``(1, 1, z, y, x)`` volume at points ``(N, 3)``
     (``u = q * scale + shift`` in grid_sample's [-1, 1] coordinates; 0 outside)."""
@@ -763,9 +700,6 @@ class _FarGrid:
         self._hi = origin + extent
         self._scale = torch.tensor(2.0 / extent, dtype=torch.float32)
         self._shift = torch.tensor(-1.0 - 2.0 * origin / extent, dtype=torch.float32)
-        # the same transform as float32 rows of _TILE points, for _read32
-        self._scale_rows = np.tile(self._scale.numpy(), _TILE)
-        self._shift_rows = np.tile(self._shift.numpy(), _TILE)
 
     @classmethod
     def build(cls, field: DistanceField, spacing: float, padding: float) -> _FarGrid:

@@ -24,7 +24,7 @@ from ..core.version import __version__
 MANIFEST_SCHEMA = 1
 # distribution names (as pip knows them), reported as-is; missing ones are null
 PACKAGES = ("grip-bench", "numpy", "torch", "trimesh", "manifold3d", "mujoco", "pandas",
-            "matplotlib", "scipy", "coacd", "smplx")
+            "matplotlib", "scipy", "coacd", "numba", "smplx")
 _GIT_TIMEOUT_S = 5  # git on a network file system can hang; a manifest must not
 
 

@@ -1,14 +1,15 @@
-"""The far="coarse" read path: each point's grid decided once, one read per grid, bit for bit
-the sequential per-point path it replaced (kept here as the reference); the grouped form."""
+"""The far="coarse" read path (compiled, geometry.gridread): each point's grid decided once and
+read, bit for bit the sequential per-point torch path it replaced (kept here as the
+reference); the moved-points form the sensors use."""
 
 import manifold3d
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from grip_bench.core.errors import InputError
 from grip_bench.geometry import distance as D
 from grip_bench.geometry.meshes import from_manifold
 
@@ -119,84 +120,67 @@ def test_chunks_do_not_change_values(fields, monkeypatch):
     np.testing.assert_array_equal(field.signed_distance(q, far="coarse"), whole)
 
 
-def _groups(field, rng, G=120, n=200):
-    """G rigidly moved copies of one random point cloud (radius ~0.12 m), their centres from
-    the object's middle to 1 m away, so that groups sit in every grid, across their faces
-    and beyond the last; returns points (G, n, 3)."""
-    cloud = rng.normal(size=(n, 3))
-    cloud *= 0.12 * rng.random((n, 1)) ** (1 / 3) / np.linalg.norm(cloud, axis=1, keepdims=True)
-    R = Rotation.random(G, random_state=rng.integers(1 << 31)).as_matrix()
-    lo, hi = field.mesh.bounds
-    d = rng.normal(size=(G, 3))
-    d *= np.linspace(0.0, 1.0, G)[:, None] / np.linalg.norm(d, axis=1, keepdims=True)
-    return np.einsum("gij,nj->gni", R, cloud) + ((lo + hi) / 2 + d)[:, None]
+def _frames(rng, T, reach=1.0):
+    """T random frames (rot (T, 3, 3), transl (T, 3)) whose origins sit 0 to ``reach`` m
+    from the origin, and T random object poses (GRAB's row-vector rotations, translations)."""
+    rot = Rotation.random(T, random_state=rng.integers(1 << 31)).as_matrix()
+    d = rng.normal(size=(T, 3))
+    d *= np.linspace(0.0, reach, T)[:, None] / np.linalg.norm(d, axis=1, keepdims=True)
+    obj_rot = Rotation.random(T, random_state=rng.integers(1 << 31)).as_matrix()
+    return rot, d, obj_rot, rng.normal(scale=0.02, size=(T, 3))
 
 
 @pytest.mark.parametrize("shape", list(SHAPES))
-def test_grouped_is_the_sequential_path_bit_for_bit(fields, shape, monkeypatch):
+def test_moved_points_are_the_two_step_path_bit_for_bit(fields, shape):
+    """One compiled pass (move, then read) equals hand_points_in_object then the coarse
+    read, at every level, for both exact_cells settings; NaN frames included."""
+    from grip_bench.sensors import hand_points_in_object
+
     field = fields[shape]
-    rng = np.random.default_rng(11)
-    p = _groups(field, rng)
-    flat = p.reshape(-1, 3)
-    tight = (p.min(axis=1), p.max(axis=1))  # boxes touching their extreme points
-    widen = rng.uniform(0, 0.05, (2, len(p), 3))
-    loose = (tight[0] - widen[0], tight[1] + widen[1])
+    rng = np.random.default_rng(13)
+    local = rng.normal(scale=0.08, size=(300, 3))
+    rot, transl, obj_rot, obj_transl = _frames(rng, 60)
+    transl[7] = np.nan  # a frame without a wrist
+    q = hand_points_in_object(local, rot, transl, obj_rot, obj_transl)
+    assert set(np.unique(field._levels(q.reshape(-1, 3)))) == {0, 1, 2, 3}
     for exact_cells in (True, False):
-        ref = reference_tiered(field, flat, exact_cells).reshape(p.shape[:2])
-        for lo, hi in (tight, loose):
-            got = field.signed_distance_grouped(p, lo, hi, exact_cells)
-            np.testing.assert_array_equal(got, ref)
-    # whole groups at one level, mixed ones, and groups beyond every grid all occur
-    lo, hi = tight
-    levels = field._group_levels(flat, p.shape[1], lo, hi).reshape(p.shape[:2])
-    np.testing.assert_array_equal(levels.ravel(), field._levels(flat))
-    pure = (levels == levels[:, :1]).all(axis=1)
-    assert pure.any() and (~pure).any() and (levels == len(field._boxes())).all(axis=1).any()
-    monkeypatch.setattr(D, "_CHUNK", 1000)  # several chunks of whole groups
-    np.testing.assert_array_equal(field.signed_distance_grouped(p, lo, hi),
-                                  reference_tiered(field, flat, True).reshape(p.shape[:2]))
-
-
-def test_grouped_groups_on_grid_faces(fields):
-    """Groups lying exactly on a grid box's face (their box's side equal to the face) count
-    as inside it, as their points do; a group with one point a float step (or 0.5 mm)
-    beyond the face straddles it, and that point goes to the next grid."""
-    field = fields["sphere"]
-    rng = np.random.default_rng(5)
-    pts = []
-    for blo, bhi in field._boxes():
-        for k in range(3):
-            for face, out in ((blo[k], -np.inf), (bhi[k], np.inf)):
-                for beyond in (None, np.nextafter(face, out), face + np.sign(out) * 5e-4):
-                    g = blo + rng.uniform(0, 1, (50, 3)) * (bhi - blo)
-                    g[:, k] = face
-                    if beyond is not None:
-                        g[0, k] = beyond
-                    pts.append(g)
-    p = np.stack(pts)
-    lo, hi = p.min(axis=1), p.max(axis=1)
-    ref = reference_tiered(field, p.reshape(-1, 3), True).reshape(p.shape[:2])
-    np.testing.assert_array_equal(field.signed_distance_grouped(p, lo, hi), ref)
-    levels = field._group_levels(p.reshape(-1, 3), p.shape[1], lo, hi).reshape(p.shape[:2])
-    assert (levels[:, 0] != levels[:, 1]).sum() >= 2 * 6 * (len(field._boxes()) - 1)
-
-
-def test_grouped_shapes_and_empty(fields):
-    field = fields["sphere"]
-    with pytest.raises(InputError, match="signed_distance_grouped"):
-        field.signed_distance_grouped(np.zeros((4, 3)), np.zeros((4, 3)), np.zeros((4, 3)))
-    with pytest.raises(InputError):
-        field.signed_distance_grouped(np.zeros((2, 5, 3)), np.zeros((3, 3)), np.zeros((3, 3)))
-    assert field.signed_distance_grouped(np.zeros((0, 5, 3)), np.zeros((0, 3)),
-                                         np.zeros((0, 3))).shape == (0, 5)
+        ref = reference_tiered(field, q.reshape(-1, 3), exact_cells).reshape(60, 300)
+        got = field.moved_signed_distance(local, rot, transl, obj_rot, obj_transl, exact_cells)
+        np.testing.assert_array_equal(got, ref)
+    assert field.moved_signed_distance(local[:0], rot, transl, obj_rot, obj_transl).shape == (60, 0)
     assert field.signed_distance(np.zeros((0, 3)), far="coarse").shape == (0,)
 
 
-def test_read32_is_read(fields):
-    """The tiled float32 transform gives _read's values, tails of every length included."""
-    tier = fields["cup"]._far_tiers()[1]
-    q = np.random.default_rng(2).uniform(-0.8, 0.8, (1000, 3))
-    for m in (1, 63, 64, 65, 1000):
-        got = D._read32(tier._vol, tier._scale_rows, tier._shift_rows, q[:m].astype(np.float32))
-        np.testing.assert_array_equal(got.astype(np.float64),
-                                      D._read(tier._vol, tier._scale, tier._shift, q[:m]))
+def test_compiled_read_is_grid_sample_bit_for_bit():
+    """gridread's trilinear and nearest reads against torch's grid_sample (3-D, zero padding,
+    align_corners) on random volumes, at points inside, on the border, outside (some
+    corners missing) and NaN."""
+    from grip_bench.geometry import gridread as G
+
+    rng = np.random.default_rng(8)
+    for dims in ((5, 7, 9), (2, 2, 2), (33, 17, 40)):
+        vol = rng.normal(size=dims).astype(np.float32)
+        u = rng.uniform(-1.3, 1.3, (20000, 3)).astype(np.float32)
+        u[:300] = np.round(u[:300] * 4) / 4  # on nodes and cell faces
+        u[300:310, 1] = np.nan
+        t = torch.from_numpy(vol)[None, None]
+        g = torch.from_numpy(u).view(1, 1, 1, -1, 3)
+        ref = F.grid_sample(t, g, align_corners=True).view(-1).numpy()
+        near = F.grid_sample(t, g, mode="nearest", align_corners=True).view(-1).numpy()
+        got, got_near = _compiled_reads(G, vol.reshape(-1), np.array(dims), u)
+        np.testing.assert_array_equal(got, ref)
+        np.testing.assert_array_equal(got_near, near)
+
+
+def _compiled_reads(G, flat, dims, u):
+    from numba import njit
+
+    @njit
+    def both(flat, D, H, W, u, a, b):
+        for n in range(u.shape[0]):
+            a[n] = G._trilinear(flat, D, H, W, u[n, 0], u[n, 1], u[n, 2])
+            b[n] = G._nearest(flat, D, H, W, u[n, 0], u[n, 1], u[n, 2])
+
+    a, b = np.empty(len(u), np.float32), np.empty(len(u), np.float32)
+    both(flat, *[int(x) for x in dims], u, a, b)
+    return a, b

@@ -228,34 +228,14 @@ def _maps_around(centre, T, rng, reach=0.8):
     return M.reshape(T, 2, 3, 3), centre + d
 
 
-def test_rigid_boxes_hold_the_points():
-    """The moved box-and-ball bounds hold every moved point, also for maps that are not
-    rotations (scaled, sheared), and are no wider than the ball's box."""
-    rng = np.random.default_rng(4)
-    for ambient in ("distance", "voxel"):
-        for local, bounds in zip(S.hand_sensor_points(1.0, ambient),
-                                 S._sensor_bounds(1.0, ambient), strict=True):
-            M, c = _maps_around(np.array([2.0, -1.0, 0.5]), 50, rng)
-            M[:10] *= rng.uniform(0.5, 2.0, (10, 2, 1, 1))
-            M[10:20] += rng.normal(scale=0.3, size=(10, 2, 3, 3))
-            q = S.apply_rigid(M, c, local)
-            lo, hi = S._rigid_boxes(M, c, bounds)
-            assert (q >= lo[:, :, None]).all() and (q <= hi[:, :, None]).all()
-            centre, radius = bounds[2], bounds[3]
-            assert np.allclose(np.linalg.norm(local - centre[:, None], axis=2).max(1), radius)
-            width = (hi - lo)[20:]  # rotations: at most the ball's diameter (+ slack)
-            assert (width <= 2 * radius[None, :, None] * (1 + 1e-6)).all()
-
-
 @pytest.mark.parametrize("kind", ["distance", "voxel", "none"])
-def test_stage_one_rigid_grouped_is_the_per_point_path_bit_for_bit(data, kind, monkeypatch):
-    """Group boxes only skip box tests: the features equal, bit for bit, those of one
-    per-point far="coarse" query of the same points, with the grouped path forced on
-    (proximity included) and off."""
+def test_stage_one_rigid_is_the_per_point_path_bit_for_bit(data, kind):
+    """The rigid form's features equal, bit for bit, those of one far="coarse" query of the
+    moved points (proximity included), a frame without wrists included."""
     lib, seq = data
     field = lib.field(seq.obj_name)
     M, c = _maps_around(np.zeros(3), 40, np.random.default_rng(9))
-    M[5] = np.nan  # a frame without wrists: its boxes are NaN, its points per-point
+    M[5] = np.nan  # a frame without wrists
     amb_pts, prox_pts = S.hand_sensor_points(1.0, kind)
 
     def per_point(local, exact_cells):
@@ -263,17 +243,15 @@ def test_stage_one_rigid_grouped_is_the_per_point_path_bit_for_bit(data, kind, m
         return field.signed_distance(q, far="coarse", exact_cells=exact_cells).reshape(40, 2, -1)
 
     d = np.maximum(per_point(prox_pts, True), 0.0)
-    for min_points in (0, 10**9):
-        monkeypatch.setattr(S, "_GROUPED_MIN_POINTS", min_points)
-        got = S.stage_one_rigid(field, M, c, 1.0, kind)
-        np.testing.assert_array_equal(got.proximity,
-                                      S.attention(d, C.PROXIMITY_DECAY).astype(np.float32))
-        np.testing.assert_array_equal(got.mean_dist, d.mean(axis=2))
-        if kind != "none":
-            sd = per_point(amb_pts, False)
-            ref = (S.attention(np.maximum(sd, 0.0), C.AMBIENT_DECAY) if kind == "distance"
-                   else sd < 0).astype(np.float32)
-            np.testing.assert_array_equal(got.ambient, ref)
+    got = S.stage_one_rigid(field, M, c, 1.0, kind)
+    np.testing.assert_array_equal(got.proximity,
+                                  S.attention(d, C.PROXIMITY_DECAY).astype(np.float32))
+    np.testing.assert_array_equal(got.mean_dist, d.mean(axis=2))
+    if kind != "none":
+        sd = per_point(amb_pts, False)
+        ref = (S.attention(np.maximum(sd, 0.0), C.AMBIENT_DECAY) if kind == "distance"
+               else sd < 0).astype(np.float32)
+        np.testing.assert_array_equal(got.ambient, ref)
 
 
 @pytest.mark.parametrize("dtypes", [(np.float64, np.float64), (np.float32, np.float64),
@@ -312,3 +290,17 @@ def test_stage_one_is_the_world_path_bit_for_bit(data):
                                        False)
         assert np.array_equal(S.ambient_sensor(lib, seq, None, "voxel")[:, h],
                               (vox < 0).astype(np.float32))
+
+
+def test_stage_one_float32_wrists_keep_their_rounding(data):
+    """float32 wrists (a caller's torch output) are moved in float32 as before, not through
+    the compiled float64 pass: the world path's features bit for bit."""
+    lib, seq = data
+    k = seq.hand_scale or 1.0
+    wrists = {side: tuple(a.astype(np.float32) for a in S.wrist_frames(seq, side))
+              for side in ("left", "right")}
+    one = S.stage_one(lib, seq, wrists)
+    for h, side in enumerate(("left", "right")):
+        rot, transl = wrists[side]
+        d = S.object_distance(lib, seq, S.to_world(S.ambient_points(side, k), rot, transl), False)
+        assert np.array_equal(one.ambient[:, h], S.attention(d, C.AMBIENT_DECAY).astype(np.float32))
