@@ -148,6 +148,8 @@ class Row:
     spread: float = 0.0
     note: str = ""
     samples: list[float] = field(default_factory=list)
+    # where one call's time went: {part: (seconds per unit of work, its floor or None)}
+    parts: dict[str, tuple[float, float | None]] = field(default_factory=dict)
 
     @property
     def ratio(self) -> float | None:
@@ -205,6 +207,21 @@ def format_rows(rows: list[Row]) -> str:
         note = f" {r.note}" if r.note else ""
         lines.append(f"| {r.stage}{note} | {time_s} | {floor} | {ratio} | {goal} | {met} |")
     return "\n".join(lines)
+
+
+def format_parts(rows: list[Row]) -> str:
+    """Markdown table ``stage | part | time | share | floor | ratio`` of the rows that carry
+    a breakdown (GRIP offline: where one call's time goes, each part against its own FLOP
+    floor): the measured reason behind a row's ratio."""
+    lines = ["| stage | part | time | share | floor | ratio |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        total = sum(t for t, _ in r.parts.values())
+        for name, (t, floor) in r.parts.items():
+            share = f"{t / total:.0%}" if total else "—"
+            ratio = "—" if floor is None or not t else f"{floor / t:.0%}"
+            lines.append(f"| {r.stage} | {name} | {_num(t)} {r.unit} | {share} | "
+                         f"{'—' if floor is None else _num(floor)} | {ratio} |")
+    return "\n".join(lines) if len(lines) > 2 else ""
 
 
 # --- timing helpers -------------------------------------------------------------------------
@@ -531,11 +548,55 @@ def _rnet_rows(pipe: object, run: Callable[[], object]) -> int:
     return rows[0]
 
 
+# GripPipeline methods timed by _grip_parts, in call order, and the network each one runs
+_GRIP_PARTS = (("ANet recursion + arm FK", "arms_and_wrists_many", "anet"),
+               ("stage-one inputs (sensors, body context)", "_cnet_inputs", None),
+               ("CNet", "_run_cnet", "cnet"),
+               ("RNet + its proximity", "refine_many", "rnet"))
+
+
+def _grip_parts(pipe: object, run: Callable[[], object], frames: int, net_flops: dict,
+                rate: float) -> dict[str, tuple[float, float | None]]:
+    """One timed ``run()`` split over the pipeline's parts (``_GRIP_PARTS``; "other" is the
+    rest): ``{part: (ms per frame, its network's FLOP floor in ms per frame or None)}``.
+    ``net_flops``: FLOPs per frame of each network as the pipeline runs it."""
+    spent = dict.fromkeys([name for name, _, _ in _GRIP_PARTS], 0.0)
+    nested = [0]  # refine_many inside a timed part must not be counted twice
+
+    def timed(name: str, fn: Callable) -> Callable:
+        def wrapper(*a: object, **k: object) -> object:
+            nested[0] += 1
+            t0 = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                nested[0] -= 1
+                if nested[0] == 0:
+                    spent[name] += time.perf_counter() - t0
+        return wrapper
+
+    for name, attr, _ in _GRIP_PARTS:
+        setattr(pipe, attr, timed(name, getattr(pipe, attr)))
+    try:
+        t0 = time.perf_counter()
+        run()
+        total = time.perf_counter() - t0
+    finally:
+        for _, attr, _ in _GRIP_PARTS:
+            delattr(pipe, attr)  # back to the class's methods
+    out = {name: (spent[name] / frames * 1e3,
+                  None if net is None else net_flops[net] / rate * 1e3)
+           for name, _, net in _GRIP_PARTS}
+    out["other (FK of the hands, array work)"] = (
+        max(total - sum(spent.values()), 0.0) / frames * 1e3, None)
+    return out
+
+
 def _grip_offline(scene: Scene, nets: dict, floors: dict, settings: Settings,
                   progress: Progress) -> list[Row]:
     from ..core.cpu import cpu_info
     from ..grip import ANetConfig, CNetConfig, RNetConfig
-    from ..grip.flops import pipeline_flops_per_frame
+    from ..grip.flops import pipeline_flops_parts, pipeline_flops_per_frame
     from ..grip.pipeline import GripPipeline, Options
     from ..grip.train import Variant
 
@@ -557,11 +618,13 @@ def _grip_offline(scene: Scene, nets: dict, floors: dict, settings: Settings,
             emulated = prec == "bf16" and not native
             goal = (Goal("min_ratio", 0.88, ">= 88 % of sgemm floor") if prec == "fp32" else
                     None if emulated else Goal("min_ratio", 0.5, ">= 50 % of bf16 floor"))
+            net_flops = pipeline_flops_parts(CNetConfig(), ANetConfig(), RNetConfig(), share)
             rows.append(row_from(
                 f"GRIP offline {prec}{' (emulated)' if emulated else ''}, {what} frames",
                 sample, frames, "ms/frame", "frames/s", floor=flops / rate * 1e3,
                 floor_name=f"{flops / 1e9:.3f} GFLOP/frame at {best.name}",
-                goal=goal, note=f"(RNet on {share:.0%} of frames)"))
+                goal=goal, note=f"(RNet on {share:.0%} of frames)",
+                parts=_grip_parts(pipe, run, frames, net_flops, rate)))
             progress(f"{rows[-1].stage}: {rows[-1].rate:.0f} frames/s, "
                      f"{rows[-1].ratio:.0%} of floor")
     return rows
@@ -776,4 +839,5 @@ def run_bench(settings: Settings, only: tuple[str, ...] = PARTS,
             "wall_s": time.perf_counter() - t0,
             "floors": {k: f.as_dict() for k, f in floors.items()},
             "rows": [r.as_dict() for r in rows],
-            "tables": {"floors": format_floors(floors), "stages": format_rows(rows)}}
+            "tables": {"floors": format_floors(floors), "stages": format_rows(rows),
+                       "parts": format_parts(rows)}}

@@ -9,9 +9,11 @@ DESCRIPTION = """\
 Measure this machine's floors first (sgemm fp32/bf16 GFLOP/s at GRIP's GEMM shapes and a
 square size, fp32 GEMV bandwidth, one exact signed-distance query, one manifold3d boolean),
 then each stage (GRIP offline and online, the sensors, exact IV, physics tests), and print
-stage | time | floor | ratio | goal | met?. The machine's absolute speed moves from run to
-run, so goals are ratios to floors measured in the same run. Writes OUT/bench.json (with a
-manifest: versions, CPU model and flags, git revision) and OUT/bench.md; progress on stderr."""
+stage | time | floor | ratio | goal | met?, then where GRIP's time goes (ANet's recursion,
+the stage-one inputs, CNet, RNet, the rest; each network part against its own FLOP floor).
+The machine's absolute speed moves from run to run, so goals are ratios to floors measured
+in the same run. Writes OUT/bench.json (with a manifest: versions, CPU model and flags, git
+revision) and OUT/bench.md; progress on stderr."""
 
 
 def _parts(text: str) -> tuple[str, ...]:
@@ -60,9 +62,15 @@ def header(result: dict) -> str:
 
 
 def markdown(result: dict) -> str:
-    """bench.md: the header, the floors table and the stages table."""
-    return (f"# grip-bench bench\n\n{header(result)}\n\n## Floors\n\n"
-            f"{result['tables']['floors']}\n\n## Stages\n\n{result['tables']['stages']}\n")
+    """bench.md: the header, the floors table, the stages table and, when measured, where
+    GRIP's time goes (each part against its own network's FLOP floor)."""
+    md = (f"# grip-bench bench\n\n{header(result)}\n\n## Floors\n\n"
+          f"{result['tables']['floors']}\n\n## Stages\n\n{result['tables']['stages']}\n")
+    if result["tables"].get("parts"):
+        md += (f"\n## Where GRIP's time goes\n\nOne timed call per row, split over the "
+               f"pipeline's parts; a part's floor is its network's FLOPs at the row's sgemm "
+               f"rate.\n\n{result['tables']['parts']}\n")
+    return md
 
 
 def run(args: argparse.Namespace) -> int:

@@ -90,13 +90,23 @@ def flops_per_frame(cfg: CNetConfig | ANetConfig | RNetConfig) -> int:
     return 2 * macs_per_frame(cfg)
 
 
-def pipeline_flops_per_frame(cnet: CNetConfig, anet: ANetConfig, rnet: RNetConfig,
-                             interaction_share: float = 1.0) -> float:
-    """FLOPs per output frame of the offline pipeline: CNet's encoder and one decode, ANet's
-    encoder and one decode (frame t+1), RNet on a share ``interaction_share`` of the frames."""
+def pipeline_flops_parts(cnet: CNetConfig, anet: ANetConfig, rnet: RNetConfig,
+                         interaction_share: float = 1.0) -> dict[str, float]:
+    """FLOPs per output frame of each network of the offline pipeline (``anet``, ``cnet``,
+    ``rnet``): CNet's encoder and one decode, ANet's encoder and one decode (frame t+1),
+    RNet on a share ``interaction_share`` of the frames."""
     cnet_once = cnet_macs(cnet) - (cnet.n_frames - 1) * cnet_decoder_macs(cnet)
     anet_once = anet_macs(anet) - (anet.n_frames - 1) * anet_decoder_macs(anet)
-    return 2.0 * (cnet_once + anet_once + interaction_share * rnet_macs(rnet))
+    return {"anet": 2.0 * anet_once, "cnet": 2.0 * cnet_once,
+            "rnet": 2.0 * interaction_share * rnet_macs(rnet)}
+
+
+def pipeline_flops_per_frame(cnet: CNetConfig, anet: ANetConfig, rnet: RNetConfig,
+                             interaction_share: float = 1.0) -> float:
+    """FLOPs per output frame of the offline pipeline, all networks
+    (:func:`pipeline_flops_parts`)."""
+    parts = pipeline_flops_parts(cnet, anet, rnet, interaction_share)
+    return parts["cnet"] + parts["anet"] + parts["rnet"]  # 2 (c + a + r) exactly: x2 is exact
 
 
 def runtime_floor(cfgs: Iterable, flops_per_second: float) -> float:

@@ -5,6 +5,7 @@ GEMM FLOP count against torch's own counter, and a quick floors-only run through
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -33,6 +34,52 @@ def test_ratio_is_floor_time_over_stage_time():
 def test_goal_met(goal, row, met):
     row.goal = goal
     assert row.met is met
+
+
+class _FakePipe:
+    """The four GripPipeline methods _grip_parts times, each sleeping a known time (s)."""
+
+    def arms_and_wrists_many(self):
+        time.sleep(0.020)
+
+    def _cnet_inputs(self):
+        time.sleep(0.010)
+
+    def _run_cnet(self):
+        time.sleep(0.030)
+
+    def refine_many(self):
+        self._cnet_inputs()  # a timed part inside another is counted once, in the outer one
+        time.sleep(0.005)
+
+
+def test_grip_parts_split_one_call_and_restore_the_pipeline():
+    pipe = _FakePipe()
+
+    def run():
+        pipe.arms_and_wrists_many()
+        pipe._cnet_inputs()
+        pipe._run_cnet()
+        pipe.refine_many()
+        time.sleep(0.004)  # "other"
+
+    flops = {"anet": 1e9, "cnet": 2e9, "rnet": 5e8}
+    parts = perf._grip_parts(pipe, run, 10, flops, 1e11)  # 10 frames, 100 GFLOP/s
+    names = [name for name, _, _ in perf._GRIP_PARTS]
+    assert list(parts) == [*names, "other (FK of the hands, array work)"]
+    sleeps = {names[0]: 2.0, names[1]: 1.0, names[2]: 3.0, names[3]: 1.5}  # ms per frame
+    for name, least in sleeps.items():
+        assert parts[name][0] >= least  # sleeps last at least this long
+    assert parts[names[3]][0] < parts[names[2]][0]  # the nested call stayed in refine_many
+    assert parts[names[0]][1] == pytest.approx(10.0)  # 1e9 FLOP / 1e11 FLOP/s / 10, in ms
+    assert parts[names[1]][1] is None and parts[names[2]][1] == pytest.approx(20.0)
+    assert "arms_and_wrists_many" not in vars(pipe)  # the class's methods again
+    row = Row("GRIP offline fp32, 1 x 10 frames", 8.0, "ms/frame", parts=parts)
+    table = perf.format_parts([row, Row("sensors", 0.08, "ms/frame")]).splitlines()
+    assert table[0] == "| stage | part | time | share | floor | ratio |"
+    assert len(table) == 2 + len(parts)  # the row without parts adds nothing
+    assert table[2].startswith("| GRIP offline fp32, 1 x 10 frames | ANet recursion")
+    assert perf.format_parts([Row("sensors", 0.08, "ms/frame")]) == ""
 
 
 def test_row_from_per_unit_time_rate_and_spread():
