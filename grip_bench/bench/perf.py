@@ -148,7 +148,7 @@ class Row:
     spread: float = 0.0
     note: str = ""
     samples: list[float] = field(default_factory=list)
-    # where one call's time went: {part: (seconds per unit of work, its floor or None)}
+    # where one call's time went: {part: (time per unit of work in `unit`, its floor or None)}
     parts: dict[str, tuple[float, float | None]] = field(default_factory=dict)
 
     @property
