@@ -23,6 +23,7 @@ instead of inside the bowl's hull. Deterministic: no random initialisation anywh
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,8 +48,24 @@ class SurfacePieces:
 
         vertices, normals: (V, 3), the same vertex order the pieces were built on.
         """
-        return [piece_points(vertices, normals, ids, d)
-                for ids, d in zip(self.vertex_ids, self.depth, strict=True)]
+        if not len(self):
+            return []
+        ids, ends = self._flat
+        v = np.asarray(vertices, dtype=np.float64)[ids]
+        inner = v - np.repeat(self.depth, np.diff(ends, prepend=0))[:, None] * np.asarray(
+            normals, dtype=np.float64)[ids]  # one gather: a call per piece cost ~5 us each
+        out, start = [], 0
+        for end, d in zip(ends, self.depth, strict=True):
+            out.append(np.concatenate([v[start:end], inner[start:end]]) if np.isfinite(d)
+                       else v[start:end].copy())
+            start = end
+        return out
+
+    @functools.cached_property
+    def _flat(self) -> tuple[np.ndarray, np.ndarray]:
+        """All pieces' vertex ids end to end (N,) and each piece's end offset (P,)."""
+        return (np.concatenate(self.vertex_ids).astype(np.int64),
+                np.cumsum([len(i) for i in self.vertex_ids]))
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Flat arrays for the on-disk geometry cache (inverse: :meth:`from_arrays`)."""

@@ -653,6 +653,29 @@ def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult
     return pair._sims[key]
 
 
+def posed_hands(pair: SequencePair, t: int) -> list:
+    """The predicted hands the ground truth holds with at frame ``t``, as the articulated
+    hold test's :class:`~.hold.PosedHand` (world frame; not in the tables yet:
+    docs/physics_hold.md). Needs a hand model whose template has the track's vertices (the
+    procedural hand; MANO's sealed wrist adds vertices its template lacks)."""
+    from .hold import PosedHand, hand_pieces
+
+    out = []
+    for s in pair.options.sides:
+        if not pair.held(s)[t]:
+            continue
+        tr, hand, faces = pair.track("pred", s), pair.poser.hands[s], pair.poser.faces(s)
+        template = hand.template_vertices.detach().cpu().double().numpy()
+        if len(template) != tr.verts.shape[1]:
+            raise ValueError(f"the {s} hand's template has {len(template)} vertices, its "
+                             f"track {tr.verts.shape[1]}: the hold test needs them equal")
+        bones = _bone_ids(pair.poser, s, tr.verts.shape[1])
+        out.append(PosedHand(np.asarray(tr.verts[t], float), faces,
+                             np.asarray(tr.joints[t][:16], float), tuple(hand.parents), bones,
+                             hand_pieces(template, faces, bones), np.asarray(tr.sd[t], float)))
+    return out
+
+
 def _sim(pair: SequencePair, side: str, protocol: str, attr: str) -> Measured:
     """Per tested frame: ``stable`` (a diverged run is unstable) or the displacement (a
     diverged run counts as ``SIM_DISP_CAP``: the worst grasps must not vanish from a mean)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from grip_bench.core import constants as C
@@ -18,16 +19,43 @@ def test_ball_resting_in_a_bowl_stays():
     assert r.displacement < 0.001  # concave stays concave: no hull pushes the ball out
 
 
+def _free_fall(n: int) -> float:
+    """Semi-implicit Euler free fall after n steps of SIM_DT: g dt^2 n (n + 1) / 2."""
+    return 0.5 * C.GRAVITY * C.SIM_DT**2 * n * (n + 1)
+
+
 def test_free_fall_fails_and_is_counted():
     ball = trimesh.creation.icosphere(3, radius=0.02)
     far = trimesh.creation.box(extents=[0.02] * 3)
     far.apply_translation([0.5, 0, 0])
     r = H.static_hold([far], ball, (np.eye(3), np.zeros(3)))
-    assert not r.held
-    t = C.SIM_HOLD_SECONDS
-    # semi-implicit Euler free fall over the hold's steps: g dt^2 n (n + 1) / 2
-    n = round(t / C.SIM_DT)
-    assert abs(r.displacement - 0.5 * C.GRAVITY * C.SIM_DT**2 * n * (n + 1)) < 1e-6
+    assert not r.held and not r.diverged
+    # the run stops at the first free-fall check past the cap: n steps, a multiple of the
+    # check interval, whose state before the last step was already past it
+    n = next(k for k in range(H._FALL_CHECK, 10**4, H._FALL_CHECK)
+             if _free_fall(k - 1) >= C.HOLD_DISP_CAP)
+    assert n < round(C.SIM_HOLD_SECONDS / C.SIM_DT)
+    assert abs(r.displacement - _free_fall(n)) < 1e-6
+
+
+def test_free_fall_stop_keeps_the_verdict_and_the_capped_displacement(monkeypatch):
+    ball = trimesh.creation.icosphere(3, radius=0.02)
+    far = trimesh.creation.box(extents=[0.02] * 3)
+    far.apply_translation([0.5, 0, 0])
+    scenes = [([far], ball, (np.eye(3), np.zeros(3)))]
+    cube = trimesh.creation.box(extents=[0.04] * 3)
+    pads = [trimesh.creation.box(extents=[0.02, 0.015, 0.015]) for _ in range(2)]
+    for sign, pad in zip((1, -1), pads, strict=True):
+        pad.apply_translation([sign * (0.03 - 0.0005), 0, 0])
+    scenes.append((pads, cube, (np.eye(3), np.zeros(3))))
+    early = [H.static_hold(*s) for s in scenes]
+    monkeypatch.setattr(H, "_FALL_CHECK", 10**9)  # never checks: the whole second
+    full = [H.static_hold(*s) for s in scenes]
+    assert full[0].displacement == pytest.approx(_free_fall(round(C.SIM_HOLD_SECONDS / C.SIM_DT)))
+    for a, b in zip(early, full, strict=True):
+        assert (a.held, a.diverged, a.settle) == (b.held, b.diverged, b.settle)
+        assert min(a.displacement, C.HOLD_DISP_CAP) == min(b.displacement, C.HOLD_DISP_CAP)
+    assert early[1].displacement == full[1].displacement  # a held object runs the whole second
 
 
 def test_cube_pinched_by_two_fingers_holds():

@@ -197,3 +197,30 @@ def test_sensitivity_columns_stay_off_the_leaderboard():
     assert METRICS.get("hold_qs").leaderboard
     assert not any(METRICS.get(m).leaderboard
                    for m in ("hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes"))
+
+
+def test_posed_hands_feed_the_articulated_hold_test(fixture):
+    """``evaluate.posed_hands``: the hands the ground truth holds with, as the track has them,
+    with the hand model's pieces; the articulated test runs on them (bench row) and drops
+    the object the flat hand at the ground-truth wrist cannot hold."""
+    from grip_bench.metrics.evaluate import SequencePair, physics_frames, posed_hands
+    from grip_bench.metrics.intersection import FailureCounter
+
+    lib, seqs = fixture
+    cylinder = seqs[1]
+    flat = cylinder.with_hands(**{side: {"hand_pose": np.zeros_like(
+        cylinder.hand_params(side)["hand_pose"])} for side in ("right", "left")})
+    for pred, held in ((cylinder, None), (flat, False)):
+        pair = SequencePair(pred, cylinder, lib, EvalOptions(), FailureCounter())
+        t = int(physics_frames(pair, "right")[0])
+        hands = posed_hands(pair, t)
+        assert len(hands) == 2  # the two-handed pass
+        for hand, side in zip(hands, ("right", "left"), strict=True):
+            np.testing.assert_array_equal(hand.vertices, pair.track("pred", side).verts[t])
+            assert len(hand.pieces) > 0 and hand.bone_ids.max() == 15
+        R = pair.pred_rotations[t]
+        pose = (R.T, np.asarray(pred.object["transl"][t], float))
+        r = H.hold(H.hand_scene(hands, pair.mesh, pose, pair.options.up), pair.options.up)[0]
+        assert not r.diverged and np.isfinite(r.settle)
+        if held is not None:
+            assert r.held == held
