@@ -509,9 +509,10 @@ def _hold_steps(model: mujoco.MjModel, data: mujoco.MjData, start: np.ndarray) -
 
     Stops early once the object has fallen free: no contact left, at least
     ``HOLD_DISP_CAP`` from ``start`` (its centre of mass after the settle) along gravity
-    and still moving along it. With gravity the only force on it, that distance can only
-    grow, so the verdict (failed) and the capped displacement are those of the whole run,
-    and a falling object (most failures) costs about 0.15 s of simulated time, not 1 s.
+    and still moving along it. While it touches nothing, gravity is the only force on it and
+    that distance only grows (a hand part below could stop it, not lift it back), so the
+    verdict (failed) and the capped displacement are those of the whole run, and a falling
+    object (most failures) costs about 0.15 s of simulated time, not 1 s.
     Checked every ``_FALL_CHECK`` steps."""
     import mujoco
 
