@@ -1,0 +1,143 @@
+"""Do the ground-truth grasps squeeze? Thumb opposition in a GRAB-layout dataset.
+
+A probe of grasp geometry that contact shares cannot see (docs/synthgrab.md, "Where
+SynthGRAB's grasps are not GRAB's"): on the held frames the physics metrics test
+(``metrics.evaluate.physics_frames``: 8 per sequence and hand, drawn with the run's seed),
+every hand the ground truth holds with at that frame, in the object's frame:
+
+- **squeeze**: whether the touching finger bones can press the object without pushing it
+  anywhere: each bone with a vertex within ``HOLD_TOUCH`` (2 mm) pushes along minus the mean
+  outward normal at its vertices' closest surface points (the palm, which no hold test
+  tightens, is left out), and the frame squeezes when the origin lies in the convex hull of
+  those unit pushes (non-negative forces along them cancel, no friction needed);
+- **thumb-index angle**: the angle (degrees) between the thumb tip and the index tip seen
+  from the object's centre of mass, of each hand touching the object with both: near 180
+  for a pinch across the object, small when both press the same side.
+
+A simulated squeeze (the articulated hold test, ``metrics.hold``) can only hold frames that
+squeeze, so this is also a ceiling on what it can pass. Works on real GRAB with
+``--model-path`` (MANO / SMPL-X models).
+
+    python tools/grasp_opposition.py DATA [--split test] [--model-path DIR] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+THUMB_TIP, INDEX_TIP = 16, 17  # HAND_KEYPOINTS: the 16 MANO joints, then the tips
+
+
+def squeezes(pushes: np.ndarray) -> bool:
+    """Whether the origin is in the convex hull of the unit ``pushes`` (K, 3): non-negative
+    weights summing to 1 that cancel them (non-negative least squares, residual ~0)."""
+    from scipy.optimize import nnls
+
+    if len(pushes) < 2:
+        return False
+    a = np.vstack([np.asarray(pushes, float).T, np.ones(len(pushes))])
+    _, residual = nnls(a, np.array([0.0, 0.0, 0.0, 1.0]))
+    return bool(residual < 1e-9)
+
+
+def bone_pushes(field, local: np.ndarray, sd: np.ndarray, bones: np.ndarray,
+                touch: float) -> np.ndarray:
+    """Unit push directions (B, 3), object frame, of the finger bones (id > 0) with a vertex
+    of ``local`` (V, 3) at signed distance ``sd`` (V,) <= ``touch``: minus the mean of the
+    normalised outward pseudonormals at their closest surface points (``field`` a
+    ``DistanceField``)."""
+    on = np.flatnonzero((sd <= touch) & (bones > 0))
+    if not len(on):
+        return np.zeros((0, 3))
+    _, _, normal = field.exact_contacts(local[on])
+    normal = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+    out = []
+    for b in np.unique(bones[on]):
+        m = -normal[bones[on] == b].mean(0)
+        out.append(m / np.linalg.norm(m))
+    return np.asarray(out)
+
+
+def angle_about(centre: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Angle (degrees) between points ``a`` and ``b`` (3,) seen from ``centre`` (3,)."""
+    u, v = a - centre, b - centre
+    c = u @ v / (np.linalg.norm(u) * np.linalg.norm(v))
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def probe(data_dir: Path, split: str = "test", model_path: str | None = None) -> dict:
+    """Per tested held frame: squeeze (bool) and the thumb-index angles; summarised."""
+    from grip_bench.core import constants as C
+    from grip_bench.data.grab_io import read_grab
+    from grip_bench.data.library import ObjectLibrary
+    from grip_bench.data.splits import sequences_in_split
+    from grip_bench.metrics.evaluate import (
+        EvalOptions,
+        SequencePair,
+        _bone_ids,
+        physics_frames,
+    )
+    from grip_bench.metrics.intersection import FailureCounter
+    from grip_bench.metrics.physics import _object_inertia
+
+    lib, opts = ObjectLibrary(data_dir), EvalOptions(model_path=model_path)
+    squeeze, angles, per_object = [], [], {}
+    for path in sequences_in_split(data_dir, split):
+        gt = read_grab(path)
+        pair = SequencePair(gt, gt, lib, opts, FailureCounter())
+        com = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)[1]
+        frames = sorted({int(t) for s in opts.sides for t in physics_frames(pair, s)})
+        for t in frames:
+            pushes = []
+            for s in opts.sides:
+                if not pair.held(s)[t]:
+                    continue
+                tr = pair.track("gt", s)
+                bones = _bone_ids(pair.poser, s, tr.local.shape[1])
+                pushes.append(bone_pushes(pair.field, tr.local[t], tr.sd[t], bones, C.HOLD_TOUCH))
+                R = pair.pred_rotations[t]  # world = R^T local + transl
+                tips = (tr.joints[t][[THUMB_TIP, INDEX_TIP]] - gt.object["transl"][t]) @ R.T
+                touching = tr.sd[t][bones == 15].min() <= C.HOLD_TOUCH and \
+                    tr.sd[t][bones == 3].min() <= C.HOLD_TOUCH
+                if touching:
+                    angles.append(angle_about(com, tips[0], tips[1]))
+            ok = squeezes(np.concatenate(pushes)) if pushes else False
+            squeeze.append(ok)
+            per_object.setdefault(gt.obj_name, []).append(ok)
+    a = np.asarray(angles)
+    return {"split": split, "frames": len(squeeze),
+            "squeeze_share": round(float(np.mean(squeeze)), 4) if squeeze else float("nan"),
+            "thumb_index_hands": int(len(a)),
+            "thumb_index_angle_median_deg": round(float(np.median(a)), 1) if len(a) else None,
+            "thumb_index_angle_over_90_share": round(float(np.mean(a > 90)), 4)
+            if len(a) else None,
+            "squeeze_share_per_object": {k: round(float(np.mean(v)), 3)
+                                         for k, v in sorted(per_object.items())}}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("data", type=Path, help="a GRAB-layout folder with splits.json")
+    ap.add_argument("--split", default="test", choices=("train", "val", "test"))
+    ap.add_argument("--model-path", default=None, help="MANO / SMPL-X models (real GRAB)")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    res = probe(args.data, args.split, args.model_path)
+    if args.json:
+        print(json.dumps(res, indent=2))
+    else:
+        print(f"{args.data} ({args.split}, {res['frames']} tested held frames): "
+              f"{100 * res['squeeze_share']:.1f} % can squeeze; thumb-index angle about the "
+              f"object's centre, median {res['thumb_index_angle_median_deg']} degrees, "
+              f"over 90 in {100 * (res['thumb_index_angle_over_90_share'] or 0):.1f} % of "
+              f"{res['thumb_index_hands']} hands touching with both")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
