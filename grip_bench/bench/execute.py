@@ -132,15 +132,23 @@ PARALLEL_KINDS = ("checkpoint", "prediction")
 # its own (GrabNet ~2.5 GB, more while the geometry cache is cold), but a kept worker's
 # peak only grows: reused across the train stage, one worker reached 7.4 GB on the default
 # profile (docs/performance.md). A fresh process costs one interpreter start and import
-# (~3 s) per unit, small beside a training unit's minutes; predictions (seconds each,
-# ~2 GB) keep their workers.
+# (~3 s) per unit, small beside a training unit's minutes.
 FRESH_PROCESS_KINDS = ("checkpoint",)
+# Predictions (seconds each) share workers, but a worker's peak grows by ~150-370 MB with each
+# GRIP variant it predicts (measured in s31's default run: one worker's 22 units took it from
+# 585 to 4,423 MiB, past #17's 4 GB, when the counterfactual split's variants landed on it).
+# A prediction worker is therefore replaced after this many units: ~6 interpreter starts a
+# default run (~20 s of CPU), and no worker holds more than a handful of variants.
+PREDICTION_TASKS_PER_WORKER = 8
 
 
 def tasks_per_worker(units: list[Unit]) -> int | None:
     """``max_tasks_per_child`` of the pool running ``units``: 1 when any unit's kind is in
-    :data:`FRESH_PROCESS_KINDS`, else None (workers live for the whole stage)."""
-    return 1 if any(u.kind in FRESH_PROCESS_KINDS for u in units) else None
+    :data:`FRESH_PROCESS_KINDS`, :data:`PREDICTION_TASKS_PER_WORKER` for predictions, else
+    None (workers live for the whole stage)."""
+    if any(u.kind in FRESH_PROCESS_KINDS for u in units):
+        return 1
+    return PREDICTION_TASKS_PER_WORKER if any(u.kind == "prediction" for u in units) else None
 
 
 def stage_workers(cfg: RunConfig) -> int:
@@ -184,7 +192,8 @@ def run_parallel(
     variants wait for the first one, which builds the shared sensor features and ANet),
     then the costliest predictions (``MethodSpec.predict_cost``), otherwise in plan order,
     so that the stage does not end with one long unit on one worker. Training units each get
-    a fresh process (:func:`tasks_per_worker`). On an interrupt or a
+    a fresh process, prediction workers are replaced every few units (:func:`tasks_per_worker`).
+    On an interrupt or a
     failure the workers are terminated and their unfinished temp folders removed; finished
     units stay in the cache.
     """

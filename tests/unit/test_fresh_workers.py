@@ -1,5 +1,6 @@
 """Training units each run in a fresh worker process (their peak memory is their own);
-prediction units share the stage's workers. Real spawn pools, trivial units."""
+prediction units share the stage's workers, each replaced after
+``PREDICTION_TASKS_PER_WORKER`` units. Real spawn pools, trivial units."""
 
 import dataclasses
 import json
@@ -7,7 +8,12 @@ import os
 from pathlib import Path
 
 from grip_bench.bench.cache import Cache
-from grip_bench.bench.execute import RunState, run_parallel, tasks_per_worker
+from grip_bench.bench.execute import (
+    PREDICTION_TASKS_PER_WORKER,
+    RunState,
+    run_parallel,
+    tasks_per_worker,
+)
 from grip_bench.bench.plan import Plan, Unit
 
 
@@ -40,7 +46,8 @@ def _pids(tmp_path: Path, kind: str, n: int) -> list[int]:
 
 def test_the_policy_names_training_only():
     assert tasks_per_worker(_units("checkpoint", 2)) == 1
-    assert tasks_per_worker(_units("prediction", 2)) is None
+    assert tasks_per_worker(_units("prediction", 2)) == PREDICTION_TASKS_PER_WORKER
+    assert tasks_per_worker(_units("metrics", 2)) is None
     assert tasks_per_worker(_units("prediction", 1) + _units("checkpoint", 1)) == 1
 
 
@@ -52,3 +59,11 @@ def test_each_training_unit_gets_its_own_process(tmp_path):
 def test_prediction_units_reuse_the_stage_workers(tmp_path):
     pids = _pids(tmp_path, "prediction", 4)
     assert len(set(pids)) <= 2 and os.getpid() not in pids
+
+
+def test_a_prediction_worker_is_replaced_after_its_quota(tmp_path):
+    """Two workers cannot run 2 k + 1 units without one of them passing its quota of k."""
+    n = 2 * PREDICTION_TASKS_PER_WORKER + 1
+    pids = _pids(tmp_path, "prediction", n)
+    assert len(set(pids)) >= 3 and os.getpid() not in pids
+    assert max(pids.count(p) for p in set(pids)) <= PREDICTION_TASKS_PER_WORKER
