@@ -142,13 +142,20 @@ FRESH_PROCESS_KINDS = ("checkpoint",)
 PREDICTION_TASKS_PER_WORKER = 8
 
 
-def tasks_per_worker(units: list[Unit]) -> int | None:
-    """``max_tasks_per_child`` of the pool running ``units``: 1 when any unit's kind is in
-    :data:`FRESH_PROCESS_KINDS`, :data:`PREDICTION_TASKS_PER_WORKER` for predictions, else
-    None (workers live for the whole stage)."""
-    if any(u.kind in FRESH_PROCESS_KINDS for u in units):
+def worker_quota(kind: str) -> int | None:
+    """How many units of ``kind`` a worker process runs before it is replaced: 1 for
+    :data:`FRESH_PROCESS_KINDS`, :data:`PREDICTION_TASKS_PER_WORKER` for predictions, None
+    (no limit) otherwise. The process pool and the Ray executor both follow it."""
+    if kind in FRESH_PROCESS_KINDS:
         return 1
-    return PREDICTION_TASKS_PER_WORKER if any(u.kind == "prediction" for u in units) else None
+    return PREDICTION_TASKS_PER_WORKER if kind == "prediction" else None
+
+
+def tasks_per_worker(units: list[Unit]) -> int | None:
+    """``max_tasks_per_child`` of the pool running ``units``: the smallest
+    :func:`worker_quota` of their kinds (None: workers live for the whole stage)."""
+    quotas = [q for q in (worker_quota(u.kind) for u in units) if q is not None]
+    return min(quotas) if quotas else None
 
 
 def stage_workers(cfg: RunConfig) -> int:

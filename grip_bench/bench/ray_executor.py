@@ -121,7 +121,7 @@ class _Submitter:
             model_path=str(Path(st.cfg.model_path).resolve()) if st.cfg.model_path else None)
         self.refs: dict[str, Any] = {}  # unit key -> its task
         self.labels: dict[Any, str] = {}  # task -> unit label
-        self.task = ray.remote(_run_unit)
+        self.tasks: dict[str, Any] = {}  # unit kind -> its remote function
         self.plan_ref = None
 
     def submit(self, plan: Plan, units: Sequence[Unit], after: Any = None) -> Any:
@@ -139,13 +139,25 @@ class _Submitter:
             cfg = self.cfg
             if unit.kind in POOL_KINDS:  # the pool the task reserved CPUs for
                 cfg = dataclasses.replace(cfg, workers=res["num_cpus"])
-            ref = self.task.options(**res, name=unit.label[:60]).remote(
+            ref = self._task(unit.kind).options(**res, name=unit.label[:60]).remote(
                 cfg, self.plan_ref, unit, self.fns[unit.kind], *deps)
             self.refs[unit.key] = last = ref
             self.labels[ref] = unit.label
             self.st.log(f"  submitted {unit.label} ({res['num_cpus']} CPU"
                         f"{', 1 GPU' if res['num_gpus'] else ''})")
         return last
+
+    def _task(self, kind: str) -> Any:
+        """The remote function for units of ``kind``: a worker runs at most
+        ``execute.worker_quota(kind)`` of them before Ray replaces it (``max_calls``, which
+        ``options`` cannot override: one remote function per kind), as the local pool does."""
+        from .execute import worker_quota
+
+        if kind not in self.tasks:
+            quota = worker_quota(kind)
+            self.tasks[kind] = (self.ray.remote(max_calls=quota)(_run_unit) if quota
+                                else self.ray.remote(_run_unit))
+        return self.tasks[kind]
 
     def wait(self, refs: list) -> None:
         """Until every task of ``refs`` finished; a unit's error is raised here."""

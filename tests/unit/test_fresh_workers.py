@@ -13,6 +13,7 @@ from grip_bench.bench.execute import (
     RunState,
     run_parallel,
     tasks_per_worker,
+    worker_quota,
 )
 from grip_bench.bench.plan import Plan, Unit
 
@@ -44,7 +45,10 @@ def _pids(tmp_path: Path, kind: str, n: int) -> list[int]:
             for u in units]
 
 
-def test_the_policy_names_training_only():
+def test_the_policy_per_kind_and_per_pool():
+    assert (worker_quota("checkpoint"), worker_quota("prediction")) == (
+        1, PREDICTION_TASKS_PER_WORKER)
+    assert worker_quota("metrics") is None  # the Ray executor follows the same quotas
     assert tasks_per_worker(_units("checkpoint", 2)) == 1
     assert tasks_per_worker(_units("prediction", 2)) == PREDICTION_TASKS_PER_WORKER
     assert tasks_per_worker(_units("metrics", 2)) is None
