@@ -200,9 +200,8 @@ def run_parallel(
     then the costliest predictions (``MethodSpec.predict_cost``), otherwise in plan order,
     so that the stage does not end with one long unit on one worker. Training units each get
     a fresh process, prediction workers are replaced every few units (:func:`tasks_per_worker`).
-    On an interrupt or a
-    failure the workers are terminated and their unfinished temp folders removed; finished
-    units stay in the cache.
+    On an interrupt or a failure the workers are terminated and their unfinished temp folders
+    removed; finished units stay in the cache.
     """
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..core.errors import InputError
 from .cache import Cache
-from .execute import RunLog, RunState, execute
+from .execute import RunLog, RunState, execute, worker_quota
 
 if TYPE_CHECKING:
     from .plan import Plan, RunConfig, Unit
@@ -151,8 +151,6 @@ class _Submitter:
         """The remote function for units of ``kind``: a worker runs at most
         ``execute.worker_quota(kind)`` of them before Ray replaces it (``max_calls``, which
         ``options`` cannot override: one remote function per kind), as the local pool does."""
-        from .execute import worker_quota
-
         if kind not in self.tasks:
             quota = worker_quota(kind)
             self.tasks[kind] = (self.ray.remote(max_calls=quota)(_run_unit) if quota
