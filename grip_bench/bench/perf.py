@@ -796,16 +796,16 @@ def _articulated_hold(pair, frames: np.ndarray, settings: Settings, core: str) -
     the issue's goal of 20 tests/s a core. The hand's and object's pieces are cached per model
     and mesh (built before timing), as a run would hit them; every scene is compiled anew."""
     from ..metrics import hold
-    from ..metrics.evaluate import posed_hands
+    from ..metrics.evaluate import object_pose, posed_hands
 
     hold.object_pieces(pair.mesh)
     up = pair.options.up
 
     def run() -> None:
         for t in frames:
-            R = pair.pred_rotations[int(t)]
-            pose = (R.T, np.asarray(pair.pred.object["transl"][int(t)], float))
-            hold.hold(hold.hand_scene(posed_hands(pair, int(t)), pair.mesh, pose, up), up)
+            scene = hold.hand_scene(posed_hands(pair, int(t)), pair.mesh,
+                                    object_pose(pair, int(t)), up)
+            hold.hold(scene, up)
 
     posed_hands(pair, int(frames[0]))  # the hand model's pieces, cached from here on
     sample = repeat(run, settings.repeats)

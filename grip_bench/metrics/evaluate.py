@@ -634,6 +634,12 @@ def m_hold_qs_axes(pair: SequencePair, side: str) -> Measured:
     return _qs(pair, side, C.SIM_FRICTION, axes=True)
 
 
+def object_pose(pair: SequencePair, t: int) -> tuple[np.ndarray, np.ndarray]:
+    """The predicted object's pose at frame ``t`` as the physics scenes take it: ``(R, t)``
+    (3, 3), (3,) with world = R @ local + t."""
+    return pair.pred_rotations[t].T, np.asarray(pair.pred.object["transl"][t], float)
+
+
 def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult:
     """MuJoCo stability of frame ``t`` with every predicted hand held there (GT mask),
     cached per (frame, protocol) so a bimanual frame is simulated once for both hands."""
@@ -643,10 +649,8 @@ def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult
     if key not in pair._sims:
         sides = [s for s in pair.options.sides if pair.held(s)[t]]
         hands = [_hand_mesh(pair, s, t) for s in sides]
-        R = pair.pred_rotations[t]
-        pose = (R.T, np.asarray(pair.pred.object["transl"][t], float))  # world = R^T local + t
-        res = stability(hands, pair.mesh, protocol, obj_pose=pose, up=pair.options.up,
-                        obj_pieces=pair.obj_pieces)
+        res = stability(hands, pair.mesh, protocol, obj_pose=object_pose(pair, t),
+                        up=pair.options.up, obj_pieces=pair.obj_pieces)
         if res.diverged:
             pair.failures.add(f"simulation diverged ({protocol})")
         pair._sims[key] = res

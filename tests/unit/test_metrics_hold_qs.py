@@ -203,7 +203,12 @@ def test_posed_hands_feed_the_articulated_hold_test(fixture):
     """``evaluate.posed_hands``: the hands the ground truth holds with, as the track has them,
     with the hand model's pieces; the articulated test runs on them (bench row) and drops
     the object the flat hand at the ground-truth wrist cannot hold."""
-    from grip_bench.metrics.evaluate import SequencePair, physics_frames, posed_hands
+    from grip_bench.metrics.evaluate import (
+        SequencePair,
+        object_pose,
+        physics_frames,
+        posed_hands,
+    )
     from grip_bench.metrics.intersection import FailureCounter
 
     lib, seqs = fixture
@@ -218,9 +223,8 @@ def test_posed_hands_feed_the_articulated_hold_test(fixture):
         for hand, side in zip(hands, ("right", "left"), strict=True):
             np.testing.assert_array_equal(hand.vertices, pair.track("pred", side).verts[t])
             assert len(hand.pieces) > 0 and hand.bone_ids.max() == 15
-        R = pair.pred_rotations[t]
-        pose = (R.T, np.asarray(pred.object["transl"][t], float))
-        r = H.hold(H.hand_scene(hands, pair.mesh, pose, pair.options.up), pair.options.up)[0]
+        scene = H.hand_scene(hands, pair.mesh, object_pose(pair, t), pair.options.up)
+        r = H.hold(scene, pair.options.up)[0]
         assert not r.diverged and np.isfinite(r.settle)
         if held is not None:
             assert r.held == held
