@@ -597,9 +597,11 @@ def render_all(results_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
                metrics_registry: Registry[MetricSpec] | None = None,
                n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
                averaging: str = "sequence",
-               links: Mapping[str, Sequence[tuple[str, Path]]] | None = None) -> list[Path]:
-    """Write every registered table in every format from ``results_dir`` into ``out_dir``.
+               links: Mapping[str, Sequence[tuple[str, Path]]] | None = None,
+               tables: Sequence[str] | None = None) -> list[Path]:
+    """Write the registered tables in every format from ``results_dir`` into ``out_dir``.
 
+    ``tables``: only these table ids (a run's ``--tables`` / ``[run] tables``); None: all.
     ``links``: ``{method: [(text, viewer page path)]}``; the HTML rows of those methods link
     to them (relative URLs).
 
@@ -613,7 +615,10 @@ def render_all(results_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     runtime = read_runtime(runtime_path) if runtime_path.is_file() else None
     datasets = sorted(results["dataset"].unique()) or [None]
     written: list[Path] = []
-    for spec in TABLES:
+    for t in tables or ():
+        TABLES.get(t)  # an unknown id: InputError listing the known tables
+    chosen = [spec for spec in TABLES if tables is None or spec.id in tables]
+    for spec in chosen:
         targets = [None] if spec.source == "runtime" else datasets
         for ds in targets:
             out = out_dir / ds if ds is not None and len(datasets) > 1 else out_dir

@@ -253,6 +253,34 @@ def report_options(out: Path) -> dict:
     return {**defaults, **saved}
 
 
+def run_tables(out: Path) -> list[str] | None:
+    """The table ids the run in ``out`` chose (``manifest.json`` ``config.tables``); None
+    (every registered table) without a manifest or without that entry."""
+    path = Path(out) / "manifest.json"
+    if not path.is_file():
+        return None
+    from ..results.manifest import read_manifest
+
+    tables = (read_manifest(path).get("config") or {}).get("tables")
+    return list(tables) if tables else None
+
+
+def _drop_unrequested_tables(tables_dir: Path, keep: list[str] | None) -> None:
+    """Remove files of registered tables the run did not choose (an earlier report's, or
+    rendered before reports followed ``config.tables``): a table folder holds only the run's
+    tables. Only ``<registered id>.<format>`` names are touched, in the folder and in its
+    per-dataset subfolders."""
+    if keep is None or not tables_dir.is_dir():
+        return
+    from .render import FORMATS
+    from .tables import TABLES
+
+    names = {f"{spec.id}.{fmt}" for spec in TABLES if spec.id not in keep for fmt in FORMATS}
+    for folder in (tables_dir, *(d for d in tables_dir.iterdir() if d.is_dir())):
+        for name in names:
+            (folder / name).unlink(missing_ok=True)
+
+
 def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Path]:
     """Tables, figures and leaderboard from ``OUT/results.csv`` (+ runtime.csv, figure data).
 
@@ -271,9 +299,12 @@ def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Pa
     options = options or report_options(out)
     results = read_results(out / "results.csv")
     links = viewer_links(out)  # OUT/viewer/index.json, written by run
+    tables = run_tables(out)  # the run's chosen tables only, as its --tables promises
+    _drop_unrequested_tables(out / "tables", tables)
     written = render_all(out, out / "tables", n_boot=options["bootstrap_n"],
                          seed=options["bootstrap_seed"],
-                         averaging=options.get("averaging", "sequence"), links=links)
+                         averaging=options.get("averaging", "sequence"), links=links,
+                         tables=tables)
     from .validity import write_validity
 
     validity = write_validity(out)  # when the run measured metric validity

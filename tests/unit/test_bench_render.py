@@ -307,3 +307,44 @@ def test_table_only_metrics_are_left_off_the_leaderboard():
              for metric in ("hold_qs", "hold_qs_mu3")}
     df = _frame({k: v for k, v in cells.items()})
     assert set(leaderboard(df)["metric"]) == {"hold_qs"}
+
+
+def test_render_all_writes_only_the_chosen_tables(tmp_path):
+    from grip_bench.core.errors import InputError
+
+    res = _results_dir(tmp_path)
+    written = render_all(res, tmp_path / "out", formats=("md",), n_boot=20,
+                         tables=["table4_future", "table2_ablation"])
+    assert sorted(p.name for p in written) == ["table2_ablation.md", "table4_future.md"]
+    # the same bytes as the table rendered among all of them
+    full = render_all(res, tmp_path / "all", formats=("md",), n_boot=20)
+    assert {p.name for p in full} >= {"physics.md", "runtime.md"}
+    for p in written:
+        assert p.read_bytes() == (tmp_path / "all" / p.name).read_bytes()
+    with pytest.raises(InputError, match="no_such_table"):
+        render_all(res, tmp_path / "bad", formats=("md",), n_boot=20, tables=["no_such_table"])
+
+
+def test_write_report_follows_the_runs_tables_and_drops_stale_ones(tmp_path):
+    """A run that chose two tables gets those two in OUT/tables/: files of the other
+    registered tables (an earlier report's) are removed, anything else is left alone."""
+    from grip_bench.report.write import write_report
+    from grip_bench.results.manifest import write_manifest
+
+    out = _results_dir(tmp_path)
+    tables = out / "tables"
+    tables.mkdir()
+    for name in ("physics.md", "runtime.tex", "notes.md"):
+        (tables / name).write_text("stale", encoding="utf-8")
+    write_manifest(out / "manifest.json", {"config": {
+        "tables": ["table2_ablation", "table4_future"],
+        "report": {"bootstrap_n": 20, "bootstrap_seed": 0, "figure_methods": [],
+                   "split": "test", "averaging": "sequence"}}})
+    write_report(out)
+    names = {p.name for p in tables.iterdir()}
+    assert {f"table2_ablation.{f}" for f in FORMATS} <= names
+    assert {f"table4_future.{f}" for f in FORMATS} <= names
+    assert not any(n.startswith(("physics.", "runtime.", "table3_", "table4_grasp."))
+                   for n in names)
+    assert (tables / "notes.md").read_text(encoding="utf-8") == "stale"
+    assert (out / "runtime.csv").is_file()  # the run's data stays; only its table goes
