@@ -127,7 +127,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--model-path", default=None, help="MANO / SMPL-X models (real GRAB)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    res = probe(args.data, args.split, args.model_path)
+    from grip_bench.core.errors import GripBenchError
+
+    try:
+        res = probe(args.data, args.split, args.model_path)
+    except GripBenchError as e:  # bad data: one line naming the file, as the CLI does
+        print(f"error: {e.message}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(res, indent=2))
     else:

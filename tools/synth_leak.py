@@ -132,7 +132,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", default="test", choices=("test", "val"))
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    res = leak(args.data, args.split)
+    from grip_bench.core.errors import GripBenchError
+
+    try:
+        res = leak(args.data, args.split)
+    except GripBenchError as e:  # bad data: one line naming the file, as the CLI does
+        print(f"error: {e.message}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(res, indent=2))
     else:

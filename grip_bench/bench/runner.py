@@ -347,7 +347,7 @@ def stage_report(st: RunState) -> None:
     assemble_validity(st)
     assemble_sensitivity(st)
     assemble_viewer(st)
-    written = write_report(st.cfg.out, st.cfg.report_options())
+    written = write_report(st.cfg.out, st.cfg.report_options(), tables=st.cfg.tables)
     pngs = [p.name for p in written if p.suffix == ".png"]
     st.log(f"figures: {', '.join(pngs)}" if pngs else "figures: none drawn (no figure data)")
     log_sensitivity_gate(st)

@@ -20,6 +20,8 @@ from ..core.errors import InputError
 from ..results.layout import CLEAN, MAIN_SPLIT
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from .tables import TableData
 
 # figure data (written by ``run`` from the metric units, read by ``write_figures``)
@@ -281,8 +283,12 @@ def _drop_unrequested_tables(tables_dir: Path, keep: list[str] | None) -> None:
             (folder / name).unlink(missing_ok=True)
 
 
-def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Path]:
+def write_report(out: str | os.PathLike, options: dict | None = None,
+                 tables: Sequence[str] | None = None) -> list[Path]:
     """Tables, figures and leaderboard from ``OUT/results.csv`` (+ runtime.csv, figure data).
+
+    ``tables``: the table ids to write (``run`` passes its chosen ones before it writes
+    ``manifest.json``); None: those ``OUT/manifest.json`` records (``run_tables``).
 
     Reads only files in ``OUT``: ``grip-bench report OUT`` and the end of ``run`` call this
     same function, so they write the same bytes. When ``OUT/viewer/index.json`` exists (run's
@@ -299,7 +305,7 @@ def write_report(out: str | os.PathLike, options: dict | None = None) -> list[Pa
     options = options or report_options(out)
     results = read_results(out / "results.csv")
     links = viewer_links(out)  # OUT/viewer/index.json, written by run
-    tables = run_tables(out)  # the run's chosen tables only, as its --tables promises
+    tables = list(tables) if tables is not None else run_tables(out)  # as --tables promises
     _drop_unrequested_tables(out / "tables", tables)
     written = render_all(out, out / "tables", n_boot=options["bootstrap_n"],
                          seed=options["bootstrap_seed"],

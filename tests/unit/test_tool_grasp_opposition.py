@@ -54,3 +54,14 @@ def test_probe_on_the_grasp_fixture(tmp_path):
     # both hands round the cylinder push against each other; the mug's one hand does not
     assert res["squeeze_share_per_object"] == {"cylindermedium": 1.0, "mug": 0.0}
     assert 0.0 <= res["thumb_index_angle_median_deg"] <= 180.0
+
+
+@pytest.mark.parametrize("tool", ["grasp_opposition", "synth_leak"])
+def test_tools_fail_bad_data_with_one_line(tool, tmp_path, capsys):
+    """A folder without splits.json: exit 1 and one line naming the file, no traceback."""
+    import importlib
+
+    main = importlib.import_module(f"tools.{tool}").main
+    assert main([str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "splits.json" in err and err.startswith("error: ")
