@@ -1,0 +1,193 @@
+"""Can the procedural hand's thumb pad face its index pad? The pinch-opposition check.
+
+A pinch squeezes only when the thumb pad and the index pad press against each other
+(docs/physics_hold.md, "Measured in s32"). This measures it on the hand model itself, in
+the hand frame, no data needed:
+
+- **the SynthGRAB pinch pose** (``data.synth.grasp._PINCH_CLOSED``): the angle between the
+  two pads' outward normals (180: facing each other) and how far each normal points off the
+  other pad (0: straight at it);
+- **the best pinch the hand can make** at each aperture: the thumb (CMC on three axes, MCP
+  and IP flexion) and the index (MCP, PIP and DIP flexion) optimised within the joint limits
+  (L-BFGS-B from seeded random starts) so that the pads are the aperture apart with their
+  normals opposite and each pointing at the other pad. ``--index natural`` keeps the index
+  in a natural pinch (MCP 20-55, PIP 20-75, DIP 5-45 degrees); ``--index free`` lets it go
+  to its limits (the optimum then curls it fully).
+
+A pad is the vertex of the distal bone 60 % along the segment whose rest normal faces the
+pad direction most. With mu = 1 two contacts can squeeze when each normal is within 45
+degrees of the line between them; a human pinch is near 180 / 0 / 0.
+
+    python tools/pinch_opposition.py [--apertures 10 30 50] [--index natural] [--starts 12]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+THUMB_DISTAL, INDEX_DISTAL = 15, 3  # bone ids (MANO joint order)
+THUMB_TIP, INDEX_TIP = 16, 17  # HAND_KEYPOINTS: the 16 MANO joints, then the tips
+PAD_FRACTION = 0.6  # along the distal segment, from its joint to the tip
+THUMB_PAD_DIR = np.array([0.0, -0.55, -0.85]) / np.linalg.norm([0.0, -0.55, -0.85])
+INDEX_PAD_DIR = np.array([0.0, -1.0, 0.0])  # palmar (the hand frame's palm normal)
+# (local joint, axis) the optimiser moves: thumb CMC x3, MCP and IP flexion; index flexions
+MOVED = ((12, 0), (12, 1), (12, 2), (13, 0), (14, 0), (0, 0), (1, 0), (2, 0))
+NATURAL_INDEX_DEG = {(0, 0): (20.0, 55.0), (1, 0): (20.0, 75.0), (2, 0): (5.0, 45.0)}
+
+
+def pad_angles(p_thumb: np.ndarray, n_thumb: np.ndarray, p_index: np.ndarray,
+               n_index: np.ndarray) -> dict:
+    """Pinch geometry of two pads, points ``p`` (3,) with unit outward normals ``n`` (3,):
+    ``distance_mm``, ``normals_deg`` (angle between the normals), ``thumb_off_deg`` /
+    ``index_off_deg`` (angle between each normal and the direction to the other pad)."""
+    d = np.asarray(p_index, float) - np.asarray(p_thumb, float)
+    dist = float(np.linalg.norm(d))
+    u = d / max(dist, 1e-12)
+
+    def deg(c: float) -> float:
+        return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+    return {"distance_mm": 1e3 * dist, "normals_deg": deg(n_thumb @ n_index),
+            "thumb_off_deg": deg(n_thumb @ u), "index_off_deg": deg(-(n_index @ u))}
+
+
+class PinchModel:
+    """The right procedural hand (scale 1) posed from local (flexion, abduction, twist)
+    angles (15, 3), with its two pad vertices."""
+
+    def __init__(self) -> None:
+        from grip_bench.bodies.hand import ProceduralHand
+
+        self.hand = ProceduralHand("right").double()
+        self.faces = np.asarray(self.hand.faces)
+        self.bones = np.asarray(self.hand.bone_ids)
+        v, j, n = self.pose(np.zeros((15, 3)))
+        self.thumb_pad = self._pad(v, j, n, THUMB_DISTAL, THUMB_TIP, THUMB_PAD_DIR)
+        self.index_pad = self._pad(v, j, n, INDEX_DISTAL, INDEX_TIP, INDEX_PAD_DIR)
+        self._ring = {p: np.flatnonzero((self.faces == p).any(1))
+                      for p in (self.thumb_pad, self.index_pad)}
+        self.lower = np.asarray(self.hand.joint_limits.lower, float)
+        self.upper = np.asarray(self.hand.joint_limits.upper, float)
+
+    def pose(self, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Vertices (V, 3), keypoints (21, 3) and vertex normals (V, 3) in the hand frame."""
+        import torch
+
+        from grip_bench.geometry.pieces import vertex_normals
+
+        with torch.no_grad():
+            aa = self.hand.from_local(torch.as_tensor(local, dtype=torch.float64))
+            v, j = self.hand(None, aa[None], None)
+        v, j = v[0].numpy(), j[0].numpy()
+        return v, j, vertex_normals(v, self.faces)
+
+    def _pad(self, v, j, n, bone: int, tip: int, direction: np.ndarray) -> int:
+        ids = np.flatnonzero(self.bones == bone)
+        seg = j[tip] - j[bone]
+        frac = (v[ids] - j[bone]) @ seg / (seg @ seg)
+        return int(ids[np.argmax(n[ids] @ direction - 3.0 * np.abs(frac - PAD_FRACTION))])
+
+    def geometry(self, local: np.ndarray) -> dict:
+        """``pad_angles`` of the two pads in the pose ``local`` (15, 3)."""
+        import torch
+
+        with torch.no_grad():
+            aa = self.hand.from_local(torch.as_tensor(local, dtype=torch.float64))
+            v = self.hand(None, aa[None], None)[0][0].numpy()
+        n = [self._normal(v, p) for p in (self.thumb_pad, self.index_pad)]
+        return pad_angles(v[self.thumb_pad], n[0], v[self.index_pad], n[1])
+
+    def _normal(self, v: np.ndarray, vid: int) -> np.ndarray:
+        """Area-weighted unit normal at vertex ``vid`` (``vertex_normals``' rule, from its
+        own faces only: the optimiser calls this thousands of times)."""
+        tri = v[self.faces[self._ring[vid]]]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(0)
+        return n / np.linalg.norm(n)
+
+
+def best_pinch(model: PinchModel, aperture: float, base: np.ndarray, *, index: str = "natural",
+               starts: int = 12, seed: int = 0) -> tuple[np.ndarray, dict]:
+    """The most opposed pinch (local pose (15, 3), its geometry) with the pads ``aperture``
+    metres apart; the other joints stay as in ``base`` (15, 3)."""
+    from scipy.optimize import minimize
+
+    bounds = []
+    for jj, ax in MOVED:
+        lo, hi = model.lower[jj, ax], model.upper[jj, ax]
+        if index == "natural" and (jj, ax) in NATURAL_INDEX_DEG:
+            lo, hi = np.radians(NATURAL_INDEX_DEG[(jj, ax)])
+        bounds.append((float(lo), float(hi)))
+
+    def unpack(x: np.ndarray) -> np.ndarray:
+        local = np.array(base, float, copy=True)
+        for (jj, ax), xi in zip(MOVED, x, strict=True):
+            local[jj, ax] = xi
+        return local
+
+    def cost(x: np.ndarray) -> float:
+        g = model.geometry(unpack(x))
+        c = np.cos(np.radians([g["normals_deg"], g["thumb_off_deg"], g["index_off_deg"]]))
+        return float(4e4 * (g["distance_mm"] / 1e3 - aperture) ** 2 + 2 * (1 + c[0])
+                     + (1 - c[1]) + (1 - c[2]))
+
+    rng = np.random.default_rng(seed)
+    best = None
+    for _ in range(starts):
+        x0 = np.array([rng.uniform(lo, hi) for lo, hi in bounds])
+        r = minimize(cost, x0, bounds=bounds, method="L-BFGS-B")
+        if best is None or r.fun < best.fun:
+            best = r
+    local = unpack(best.x)
+    return local, model.geometry(local)
+
+
+def probe(apertures_mm=(10.0, 30.0, 50.0), index: str = "natural", starts: int = 12,
+          seed: int = 0) -> dict:
+    """The SynthGRAB pinch pose's geometry and the best pinch at each aperture (see module
+    docstring); angles in degrees, joint angles of the best pinches in degrees."""
+    from grip_bench.data.synth.grasp import _PINCH_CLOSED, preshape_local
+
+    model = PinchModel()
+    closed = preshape_local("precision", _PINCH_CLOSED)
+    out = {"synthgrab_pinch": model.geometry(closed), "index": index, "best": []}
+    for ap in apertures_mm:
+        local, geo = best_pinch(model, ap / 1e3, closed, index=index, starts=starts, seed=seed)
+        joints = {f"{jj},{ax}": round(float(np.degrees(local[jj, ax])), 1) for jj, ax in MOVED}
+        out["best"].append({"aperture_mm": ap, **geo, "joints_deg": joints})
+    return out
+
+
+def _row(name: str, g: dict) -> str:
+    return (f"{name}: pads {g['distance_mm']:.1f} mm apart, normals {g['normals_deg']:.0f} deg "
+            f"apart, thumb normal {g['thumb_off_deg']:.0f} deg and index normal "
+            f"{g['index_off_deg']:.0f} deg off the other pad")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--apertures", type=float, nargs="+", default=[10.0, 30.0, 50.0],
+                    metavar="MM", help="pad apertures to optimise for (mm)")
+    ap.add_argument("--index", choices=("natural", "free"), default="natural",
+                    help="index flexion ranges: a natural pinch's, or the joint limits")
+    ap.add_argument("--starts", type=int, default=12, help="random starts per aperture")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    res = probe(args.apertures, args.index, args.starts, args.seed)
+    if args.json:
+        print(json.dumps(res, indent=2))
+        return 0
+    print(_row("SynthGRAB pinch (_PINCH_CLOSED)", res["synthgrab_pinch"]))
+    for b in res["best"]:
+        print(_row(f"best pinch, {b['aperture_mm']:.0f} mm, index {res['index']}", b))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    sys.exit(main())
