@@ -177,8 +177,23 @@ def _init_unit_worker() -> None:
 
 
 def _unit_task(st: RunState, unit: Unit, fn: Callable[[RunState, Unit, Path], dict]) -> str:
-    execute(st, unit, lambda tmp: fn(st, unit, tmp))
+    try:
+        execute(st, unit, lambda tmp: fn(st, unit, tmp))
+    finally:
+        release_unit_memory(st)
     return unit.key
+
+
+def release_unit_memory(st: RunState) -> None:
+    """Free what a worker's unit left behind before its next unit: the methods it loaded
+    (``st`` is the task's own copy, so nothing else uses them) and the reference cycles its
+    work made. Python collects cycles only now and then, so without this a kept worker grew
+    with every unit (smoke profile, one worker per stage, no worker quota: largest worker
+    793 MiB without, 705 MiB with; GRIP variants +20-30 MiB each before, ~0 after)."""
+    import gc
+
+    st.methods.clear()
+    gc.collect()
 
 
 def _ready(unit: Unit, pending_keys: set[str]) -> bool:

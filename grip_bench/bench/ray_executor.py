@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..core.errors import InputError
 from .cache import Cache
-from .execute import RunLog, RunState, execute, worker_quota
+from .execute import RunLog, RunState, execute, release_unit_memory, worker_quota
 
 if TYPE_CHECKING:
     from .plan import Plan, RunConfig, Unit
@@ -79,7 +79,10 @@ def _run_unit(cfg: RunConfig, plan: Plan, unit: Unit, fn: StageFn, *_deps: str) 
     torch.set_num_threads(1)  # as the local workers: the same floating-point path
     load_all()  # a fresh worker starts with an empty method registry
     st = RunState(cfg, Cache(cfg.out / "cache"), plan, RunLog(cfg.out / "run.log", echo=False))
-    execute(st, unit, lambda tmp: fn(st, unit, tmp))
+    try:
+        execute(st, unit, lambda tmp: fn(st, unit, tmp))
+    finally:
+        release_unit_memory(st)  # a Ray worker runs several units, as a pool worker does
     return unit.key
 
 

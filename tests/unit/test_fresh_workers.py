@@ -74,3 +74,46 @@ def test_a_prediction_worker_is_replaced_after_its_quota(tmp_path, monkeypatch):
     pids = _pids(tmp_path, "prediction", 5)
     assert len(set(pids)) >= 3 and os.getpid() not in pids
     assert max(pids.count(p) for p in set(pids)) <= 2
+
+
+class _Cyclic:
+    """A loaded method stand-in caught in a reference cycle (as real ones can be)."""
+
+    def __init__(self):
+        self.me = self
+
+
+def test_a_worker_frees_its_units_methods_and_cycles_after_each_unit(tmp_path):
+    """``_unit_task`` (a pool worker's unit) ends with ``release_unit_memory``: the task's
+    loaded methods are dropped (also when the unit fails) and the cycles its work made are
+    collected at once, so a kept worker does not grow from unit to unit."""
+    import gc
+    import weakref
+
+    import pytest
+
+    from grip_bench.bench.execute import _unit_task
+
+    units = _units("prediction", 2)
+    plan = Plan(units, {u.key: False for u in units}, data_key="", dataset="")
+    st = RunState(_Cfg(), Cache(tmp_path / "cache"), plan, log=_no_log)
+    refs = []
+
+    def work(state, unit, tmp, fail=False):
+        made = _Cyclic()
+        state.methods[("m", unit.key)] = made
+        garbage = _Cyclic()  # left behind by the unit's own work
+        refs.extend([weakref.ref(made), weakref.ref(garbage)])
+        if fail:
+            raise RuntimeError("unit failed")
+        return {}
+
+    gc.disable()  # only release_unit_memory may collect here
+    try:
+        assert _unit_task(st, units[0], work) == units[0].key
+        assert not st.methods and all(r() is None for r in refs)
+        with pytest.raises(RuntimeError, match="unit failed"):
+            _unit_task(st, units[1], lambda s, u, t: work(s, u, t, fail=True))
+        assert not st.methods  # (its objects live on in the traceback pytest keeps)
+    finally:
+        gc.enable()
