@@ -189,7 +189,7 @@ def release_unit_memory(st: RunState) -> None:
     (``st`` is the task's own copy, so nothing else uses them) and the reference cycles its
     work made. Python collects cycles only now and then, so without this a kept worker grew
     with every unit (smoke profile, one worker per stage, no worker quota: largest worker
-    793 MiB without, 705 MiB with; GRIP variants +20-30 MiB each before, ~0 after)."""
+    793 MiB without, 696 MiB with; GRIP variants +20-30 MiB each before, ~0 after)."""
     import gc
 
     st.methods.clear()
