@@ -74,16 +74,20 @@ class PinchModel:
         self.lower = np.asarray(self.hand.joint_limits.lower, float)
         self.upper = np.asarray(self.hand.joint_limits.upper, float)
 
-    def pose(self, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Vertices (V, 3), keypoints (21, 3) and vertex normals (V, 3) in the hand frame."""
+    def _forward(self, local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices (V, 3) and keypoints (21, 3) in the hand frame of the pose ``local``."""
         import torch
-
-        from grip_bench.geometry.pieces import vertex_normals
 
         with torch.no_grad():
             aa = self.hand.from_local(torch.as_tensor(local, dtype=torch.float64))
             v, j = self.hand(None, aa[None], None)
-        v, j = v[0].numpy(), j[0].numpy()
+        return v[0].numpy(), j[0].numpy()
+
+    def pose(self, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Vertices (V, 3), keypoints (21, 3) and vertex normals (V, 3) in the hand frame."""
+        from grip_bench.geometry.pieces import vertex_normals
+
+        v, j = self._forward(local)
         return v, j, vertex_normals(v, self.faces)
 
     def _pad(self, v, j, n, bone: int, tip: int, direction: np.ndarray) -> int:
@@ -94,11 +98,7 @@ class PinchModel:
 
     def geometry(self, local: np.ndarray) -> dict:
         """``pad_angles`` of the two pads in the pose ``local`` (15, 3)."""
-        import torch
-
-        with torch.no_grad():
-            aa = self.hand.from_local(torch.as_tensor(local, dtype=torch.float64))
-            v = self.hand(None, aa[None], None)[0][0].numpy()
+        v = self._forward(local)[0]
         n = [self._normal(v, p) for p in (self.thumb_pad, self.index_pad)]
         return pad_angles(v[self.thumb_pad], n[0], v[self.index_pad], n[1])
 

@@ -134,11 +134,11 @@ PARALLEL_KINDS = ("checkpoint", "prediction")
 # profile (docs/performance.md). A fresh process costs one interpreter start and import
 # (~3 s) per unit, small beside a training unit's minutes.
 FRESH_PROCESS_KINDS = ("checkpoint",)
-# Predictions (seconds each) share workers, but a worker's peak grows by ~150-370 MB with each
-# GRIP variant it predicts (measured in s31's default run: one worker's 22 units took it from
-# 585 to 4,423 MiB, past #17's 4 GB, when the counterfactual split's variants landed on it).
-# A prediction worker is therefore replaced after this many units: ~6 interpreter starts a
-# default run (~20 s of CPU), and no worker holds more than a handful of variants.
+# Predictions (seconds each) share workers. In s31's default run one worker's 22 units took it
+# from 585 to 4,423 MiB (past #17's 4 GB): uncollected reference cycles, which
+# release_unit_memory now frees after every unit (without a quota: 1,754 MiB at most, s32).
+# A prediction worker is still replaced after this many units, as a second bound: ~6
+# interpreter starts a default run (~20 s of CPU).
 PREDICTION_TASKS_PER_WORKER = 8
 
 
