@@ -80,6 +80,13 @@ _THUMB_CMC = (-0.13, -0.05, 0.085)
 _THUMB_DIRS = ((-0.80, -0.22, 0.56), (-0.90, -0.14, 0.42), (-0.93, -0.10, 0.36))
 # Pad (volar) direction of the thumb at rest: towards the palm centre and palmar.
 _THUMB_PAD = (0.0, -0.55, -0.85)
+# Opposition axis of the thumb's CMC joint (hand frame, pointing to the wrist, tilted
+# dorsally): the thumb opposes by sweeping its metacarpal about the hand's long axis, from
+# beside the index to in front of the palm, which also turns its pad from facing the index's
+# side to facing the fingertips. Measured on this skeleton (s33): the CMC rotation that
+# brings the thumb pad head-on onto a naturally flexed index pad at 5-60 mm is 116-120
+# degrees about this axis within 6 degrees (tools/pinch_opposition.py checks the result).
+_THUMB_OPPOSITION_AXIS = (0.93, 0.35, -0.13)
 # Nail side is flatter than the volar side: dorsal radial distances are scaled up.
 _DORSAL_FLATTEN = 1.25
 # Palm core: a convex outline in (x, z) (fractions of hand length), extruded in y with
@@ -558,7 +565,7 @@ _LIMITS_DEG = {
     "mcp": ((-20.0, 90.0), (-15.0, 15.0), (-8.0, 8.0)),
     "pip": ((-3.0, 100.0), (-3.0, 3.0), (-4.0, 4.0)),
     "dip": ((-8.0, 80.0), (-3.0, 3.0), (-3.0, 3.0)),
-    "thumb_cmc": ((-20.0, 50.0), (-20.0, 35.0), (-20.0, 35.0)),
+    "thumb_cmc": ((-20.0, 125.0), (-25.0, 30.0), (-10.0, 35.0)),  # opposition frame
     "thumb_mcp": ((-10.0, 55.0), (-8.0, 8.0), (-10.0, 10.0)),
     "thumb_ip": ((-20.0, 80.0), (-3.0, 3.0), (-5.0, 5.0)),
 }
@@ -575,7 +582,7 @@ _THUMB_KINDS = ("thumb_cmc", "thumb_mcp", "thumb_ip")
 # twist) degrees per joint kind: MCP ~17, PIP ~25, DIP ~10, thumb slightly opposed.
 _RELAXED_DEG = {
     "mcp": (17.0, 0.0, 0.0), "pip": (25.0, 0.0, 0.0), "dip": (10.0, 0.0, 0.0),
-    "thumb_cmc": (15.0, 10.0, 10.0), "thumb_mcp": (10.0, 0.0, 0.0), "thumb_ip": (10.0, 0.0, 0.0),
+    "thumb_cmc": (20.0, 0.0, 0.0), "thumb_mcp": (10.0, 0.0, 0.0), "thumb_ip": (10.0, 0.0, 0.0),
 }
 
 
@@ -602,10 +609,23 @@ class JointLimits:
 
 
 def _joint_frames(sk: _Skeleton) -> np.ndarray:
-    """Anatomical frames of the 15 finger joints of the right hand (15, 3, 3)."""
+    """Anatomical frames of the 15 finger joints of the right hand (15, 3, 3).
+
+    A finger joint flexes about the axis across its bone and the pad normal, abducts about
+    the third axis and twists about the bone. The thumb's CMC is framed for opposition
+    instead (``_THUMB_OPPOSITION_AXIS`` first, so that "flexion" opposes; then the axis that
+    widens or narrows the cone the metacarpal sweeps; then their cross product): about its
+    own bone the opposition is a 116-degree turn mixed with abduction, which a box of
+    limits in the bone frame cannot hold without also admitting a thumb spun on its axis.
+    """
     frames = np.zeros((15, 3, 3))
     for j in range(1, 16):
         twist = _unit(sk.ends[j] - sk.joints[j])
+        if j == _FINGER_JOINTS["thumb"][0]:
+            opp = _unit(_THUMB_OPPOSITION_AXIS)
+            cone = _unit(np.cross(opp, twist))
+            frames[j - 1] = np.stack([opp, cone, np.cross(opp, cone)], axis=1)
+            continue
         flex = _unit(np.cross(twist, -sk.up[j]))  # rotating about it moves the bone to the pad side
         frames[j - 1] = np.stack([flex, np.cross(twist, flex), twist], axis=1)
     return frames

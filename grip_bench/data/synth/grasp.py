@@ -85,38 +85,51 @@ CHAINS = {"index": (0, 1, 2), "middle": (3, 4, 5), "pinky": (6, 7, 8),
           "ring": (9, 10, 11), "thumb": (12, 13, 14)}
 FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 
-# Pre-shapes as local (flexion, abduction, twist) degrees per joint kind.
+# Pre-shapes as local (flexion, abduction, twist) degrees per joint kind. The thumb's CMC is
+# in its opposition frame (``bodies.hand_template._joint_frames``): its "flexion" opposes the
+# thumb (sweeps it in front of the palm and turns its pad toward the fingertips).
+# Power: fingers open, the thumb out beside the index (SynthGRAB 2.2's pre-shape re-expressed
+# in the opposition frame), so the palm meets the object first and the thumb then opposes.
 _OPEN = {"mcp": (4, 0, 0), "pip": (6, 0, 0), "dip": (4, 0, 0),
-         "thumb_cmc": (0, 28, 15), "thumb_mcp": (5, 0, 0), "thumb_ip": (5, 0, 0)}
-# Pinch: index and middle pads meet the thumb pad; measured on the procedural hand,
-# the tips touch at _PINCH_CLOSED, and _PINCH opens it so an object fits between.
-_PINCH_CLOSED = {"mcp": (35, 0, 0), "pip": (50, 0, 0), "dip": (25, 0, 0),
-                 "thumb_cmc": (15, 0, 20), "thumb_mcp": (10, 0, 0), "thumb_ip": (40, 0, 0)}
-_PINCH = {"mcp": (12, 0, 0), "pip": (15, 0, 0), "dip": (5, 0, 0),
-          "thumb_cmc": (-15, 0, 20), "thumb_mcp": (0, 0, 0), "thumb_ip": (0, 0, 0)}
+         "thumb_cmc": (-2, 11, 30), "thumb_mcp": (5, 0, 0), "thumb_ip": (5, 0, 0)}
+# Pinch: the thumb pad meets the index pad head-on. Measured on the procedural hand with
+# tools/pinch_opposition.py: at _PINCH_CLOSED the pads meet with their normals 166 degrees
+# apart (the thumb opposed 116 degrees, its MCP and IP slightly hyperextended as in a pulp
+# pinch). _PINCH opens both so that the pads stand 38 and 39 mm from where the closed tips
+# meet (the object's centre), 70 mm apart with their normals 152 degrees apart; closing
+# (``_THUMB_CMC_PINCH`` for the thumb, flexion for the fingers) brings them together.
+_PINCH_CLOSED = {"mcp": (55, 0, 0), "pip": (25, 0, 0), "dip": (5, 0, 0),
+                 "thumb_cmc": (116, 0, 0), "thumb_mcp": (-10, 0, 0), "thumb_ip": (-20, 0, 0)}
+_PINCH = {"mcp": (40, 0, 0), "pip": (20, 0, 0), "dip": (5, 0, 0),
+          "thumb_cmc": (105, -20, 0), "thumb_mcp": (-10, 0, 0), "thumb_ip": (-20, 0, 0)}
 _TUCKED = {"mcp": (55, 0, 0), "pip": (70, 0, 0), "dip": (35, 0, 0)}
 # A pinch's middle finger: half tucked, clear of the index pad and of the object.
 _HALF_TUCKED = {"mcp": (30, 0, 0), "pip": (45, 0, 0), "dip": (20, 0, 0)}
 # Key (lateral) pinch: the fingers curled, the thumb out to the side, ready to press the
-# object against the side of the index's middle phalanx.
+# object against the side of the index's middle phalanx. (Its thumb and the hook's are the
+# SynthGRAB 2.2 poses re-expressed in the opposition frame, rounded to a degree.)
 _CURLED = {"mcp": (45, 0, 0), "pip": (70, 0, 0), "dip": (30, 0, 0),
-           "thumb_cmc": (-15, 32, 0), "thumb_mcp": (0, 0, 0), "thumb_ip": (0, 0, 0)}
+           "thumb_cmc": (11, 26, 21), "thumb_mcp": (0, 0, 0), "thumb_ip": (0, 0, 0)}
 # Hook: the four fingers half bent at the PIP and DIP (a hook, open enough for the bar to come
 # in under the proximal phalanges), the thumb relaxed and adducted along the index's side,
 # where it stays (the hook holds without it).
 _HOOK = {"mcp": (5, 0, 0), "pip": (12, 0, 0), "dip": (8, 0, 0),
-         "thumb_cmc": (5, 8, 10), "thumb_mcp": (10, 0, 0), "thumb_ip": (10, 0, 0)}
-# Closing direction in local coordinates: fingers flex; the thumb's CMC also opposes
-# (power), or comes down onto the side of the index (lateral: adduction with some flexion).
-_THUMB_CMC_CLOSE = np.array([1.0, 0.35, 0.0]) / np.linalg.norm([1.0, 0.35, 0.0])
-_THUMB_CMC_LATERAL = np.array([0.5, -1.0, 0.0]) / np.linalg.norm([0.5, -1.0, 0.0])
+         "thumb_cmc": (-5, -2, 13), "thumb_mcp": (10, 0, 0), "thumb_ip": (10, 0, 0)}
+# Closing direction in local coordinates: every joint flexes, so the thumb's CMC opposes
+# (power); a pinch's thumb closes from _PINCH toward _PINCH_CLOSED (opposing and narrowing
+# its cone); a lateral pinch's thumb comes down onto the side of the index.
+_THUMB_CMC_PINCH = np.array([11.0, 20.0, 0.0]) / np.linalg.norm([11.0, 20.0, 0.0])
+_THUMB_CMC_LATERAL = np.array([-0.30, -0.76, -0.58]) / np.linalg.norm([-0.30, -0.76, -0.58])
 # Grasp types of one hand, and the two-handed hold of a large object. The generator draws a
 # type per grasp among those the object's size admits (GraspSynthesizer.grasp_types).
 GRASP_TYPES = ("power", "handle", "precision", "tripod", "lateral", "hook", "bimanual")
 PINCH_KINDS = ("precision", "tripod")  # the object sits where the finger pads meet
+PINCH_FIT_STEPS = 12  # poses on a pinch's closing path searched for the tips' aperture
+CHORD_STEP, CHORD_REACH = 0.001, 0.06  # m; sampling of the object's chord between the tips
 # Largest thinnest extent (m) an object may have for each pinch type: the pre-shapes open
-# the thumb ~7.6 cm from the index pad (9 cm from between index and middle) at hand scale 1.
+# the thumb pad 7 cm from the index pad at hand scale 1.
 PINCH_WIDTH = {"precision": 0.055, "tripod": 0.07, "lateral": 0.03}
+POWER_THUMB_OPPOSITION = 70.0  # degrees; the most a wrapping grasp opposes its thumb
 POWER_MIN_WIDTH = 0.048  # m; smaller objects slip out of a closed fist (measured: no grasp)
 LATERAL_MIN_HEIGHT = 0.06  # m; vertical extent a lateral pinch needs above the table
 # A hook needs room beyond its bar for the curled middle and distal phalanges: the handle's
@@ -192,14 +205,15 @@ def preshape_local(kind: str, table: dict | None = None, flat: bool = False) -> 
 
 
 def _close_dirs(kind: str) -> np.ndarray:
-    """Local closing direction per joint (15, 3): flexion; a power grasp's thumb also
-    opposes, a lateral grasp's thumb adducts onto the index (a hook's thumb does not close)."""
+    """Local closing direction per joint (15, 3): flexion, which opposes the thumb's CMC; a
+    pinch's thumb closes toward ``_PINCH_CLOSED``, a lateral grasp's adducts onto the index
+    (a hook's thumb does not close)."""
     d = np.zeros((15, 3))
     d[:, 0] = 1.0
     if kind == "lateral":
         d[12] = _THUMB_CMC_LATERAL
-    elif kind not in (*PINCH_KINDS, "hook"):
-        d[12] = _THUMB_CMC_CLOSE
+    elif kind in PINCH_KINDS:
+        d[12] = _THUMB_CMC_PINCH
     return d
 
 
@@ -244,6 +258,9 @@ def _level_hands(side: str, scale: float) -> tuple[tuple[ProceduralHand, list[np
     out = []
     for level in range(3):
         bones = [np.array(CHAINS[f][level:]) + 1 for f in FINGERS]
+        # the thumb opposes until its phalanges touch: its metacarpal carries the thenar
+        # skin, which a power grasp rests on the object before the thumb closes
+        bones[0] = np.array(CHAINS["thumb"][max(level, 1):]) + 1
         keep = np.zeros(len(ids), bool)
         for b in bones:
             keep |= np.isin(sub.bone_ids_subset, b)
@@ -419,6 +436,9 @@ class GraspSynthesizer:
             # pinches: the object centred where the closed finger pads meet; hook: the bar
             # under the proximal phalanges, just clear of them
             t = target[None] - np.einsum("cij,j->ci", R, self._anchor(sub, local0, kind))
+            if kind in PINCH_KINDS and not flat:  # better: the tips straddle the object
+                fit = self._pinch_placement(sub, R, kind, target)
+                t = np.where(np.isfinite(fit), fit, t)
         else:  # along the palm normal (lateral: the thumb side, which faces the object)
             n = R[:, :, 2] if kind == "lateral" else R @ full.palm_normal
             t = self._place(sub, R, local0, target, n, kind)
@@ -662,6 +682,48 @@ class GraspSynthesizer:
         palm = j[0, [0, 4, 10]].mean(0)  # wrist, middle and ring knuckles: palm centre
         return palm + 0.45 * (j[0, 5] - j[0, 4])  # a little towards the fingers
 
+    def _pinch_placement(self, sub: ProceduralHand, R: np.ndarray, kind: str,
+                         target: np.ndarray) -> np.ndarray:
+        """Wrist positions (C, 3) of pinch candidates with rotations ``R`` (C, 3, 3) whose
+        thumb tip and finger tip(s) straddle the object: on the closing path from the
+        pre-shape to ``_PINCH_CLOSED`` (``PINCH_FIT_STEPS`` poses), the pose whose tips are
+        just wider apart than the object's chord through ``target`` along the line between
+        them, with the tips' midpoint on the chord's middle; the pads then close onto the
+        chord's two ends and push against each other. NaN rows: no chord (the target is not
+        inside the object) or the object is wider than the open pinch."""
+        f = np.linspace(0.0, 1.0, PINCH_FIT_STEPS + 1)
+        open_, closed = preshape_local(kind), preshape_local(kind, _PINCH_CLOSED)
+        poses = open_[None] + f[:, None, None] * (closed - open_)[None]
+        k = len(f)
+        _, j = _pose(sub, np.broadcast_to(np.eye(3), (k, 3, 3)), np.zeros((k, 3)), poses)
+        fingers = j[:, 17] if kind == "precision" else 0.5 * (j[:, 17] + j[:, 18])
+        gap = np.linalg.norm(fingers - j[:, 16], axis=1)  # (K,) tip distance, open to closed
+        mid = 0.5 * (fingers + j[:, 16])  # (K, 3) hand frame
+        u = _unit_rows(fingers[k // 2] - j[k // 2, 16])  # the pinch line, mid-path
+        lo, hi = self._chord(target, np.einsum("cij,j->ci", R, u))  # (C,) each
+        chord = hi - lo
+        wide = gap[None, :] >= chord[:, None] + 2.0 * GAP  # (C, K) tips clear of the chord
+        step = np.where(wide.any(1), np.where(wide, np.arange(k), -1).max(1), 0)
+        centre = target[None] + 0.5 * (lo + hi)[:, None] * np.einsum("cij,j->ci", R, u)
+        t = centre - np.einsum("cij,cj->ci", R, mid[step])
+        t[~(wide.any(1) & np.isfinite(chord))] = np.nan
+        return t
+
+    def _chord(self, p: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the line ``p + s d`` (object frame; ``d`` (C, 3) unit) leaves the object
+        around ``p`` on each side: ``s`` (C,) below and above 0, sampled every
+        ``CHORD_STEP`` up to ``CHORD_REACH``; NaN where ``p`` is outside the object."""
+        s = np.arange(-CHORD_REACH, CHORD_REACH + 1e-9, CHORD_STEP)
+        pts = p[None, None] + s[None, :, None] * d[:, None]
+        inside = self.df.signed_distance(pts.reshape(-1, 3), far="bound").reshape(len(d), -1) < 0
+        c = len(s) // 2
+        out_lo = np.where(~inside[:, :c], np.arange(c), -1).max(1)  # last outside sample below
+        out_hi = np.where(~inside[:, c:], np.arange(c, len(s)), len(s)).min(1)
+        lo = s[np.clip(out_lo, 0, len(s) - 1)] + 0.5 * CHORD_STEP
+        hi = s[np.clip(out_hi, 0, len(s) - 1)] - 0.5 * CHORD_STEP
+        bad = ~inside[:, c]
+        return np.where(bad, np.nan, lo), np.where(bad, np.nan, hi)
+
     def _place(
         self,
         sub: ProceduralHand,
@@ -751,6 +813,11 @@ class GraspSynthesizer:
             room = np.stack([_room(local[:, j], dirs[j], lower[j], upper[j]) for j in joints], 1)
             # a pinch leaves the fingers it does not use in their pre-shape, out of the way...
             room[:, [FINGERS.index(f) for f in _IDLE_FINGERS.get(kind, ()) if f not in resting]] = 0
+            if level == 0 and kind not in (*PINCH_KINDS, "lateral", "hook"):
+                # a wrapping thumb opposes only so far, then curls round the object (levels
+                # 1-2); opposed further it stands out in front of the palm, past the object
+                cap = np.radians(POWER_THUMB_OPPOSITION) - local[:, CHAINS["thumb"][0], 0]
+                room[:, 0] = np.clip(np.minimum(room[:, 0], cap), 0.0, None)
             for f, rests in resting.items():  # ...but its resting fingers flex on to the tuck
                 k, j = FINGERS.index(f), CHAINS[f][level]
                 cap = np.radians(_TUCKED[_kind_of(j)][0]) - local[:, j, 0]
@@ -898,6 +965,11 @@ def _clear_of(v: np.ndarray, avoid: np.ndarray | None) -> np.ndarray:
         v.reshape(-1, 3), distance_upper_bound=AVOID_CLEARANCE
     )
     return np.isinf(d).reshape(len(v), -1).all(1)
+
+
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    """``v`` (..., 3) scaled to unit length along the last axis."""
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:

@@ -11,8 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 
 GENERATOR_NAME = "SynthGRAB"
-GENERATOR_VERSION = "2.2"  # 2.1: hook grasps, regrasps in a third of one-handed use sequences;
-# 2.2: among grasps touching with the same parts, one that can hold the lifted object wins
+GENERATOR_VERSION = "2.3"  # 2.1: hook grasps, regrasps in a third of one-handed use sequences;
+# 2.2: among grasps touching with the same parts, one that can hold the lifted object wins;
+# 2.3: the hand's thumb opposes (its CMC framed for opposition): pinch pads meet head-on and
+# straddle the object, a wrapping thumb opposes before it curls
 
 # GRAB's intents; "use" becomes an object-specific verb as in GRAB's file names.
 INTENTS = ("lift", "pass", "use", "offhand")
