@@ -565,7 +565,7 @@ _LIMITS_DEG = {
     "mcp": ((-20.0, 90.0), (-15.0, 15.0), (-8.0, 8.0)),
     "pip": ((-3.0, 100.0), (-3.0, 3.0), (-4.0, 4.0)),
     "dip": ((-8.0, 80.0), (-3.0, 3.0), (-3.0, 3.0)),
-    "thumb_cmc": ((-20.0, 125.0), (-25.0, 30.0), (-10.0, 35.0)),  # opposition frame
+    "thumb_cmc": ((-20.0, 125.0), (-27.0, 30.0), (-43.0, 13.0)),  # opposition frame
     "thumb_mcp": ((-10.0, 55.0), (-8.0, 8.0), (-10.0, 10.0)),
     "thumb_ip": ((-20.0, 80.0), (-3.0, 3.0), (-5.0, 5.0)),
 }
@@ -579,10 +579,11 @@ _MCP_ABDUCTION_DEG = {
 _KINDS = ("mcp", "pip", "dip")
 _THUMB_KINDS = ("thumb_cmc", "thumb_mcp", "thumb_ip")
 # Relaxed hand (GRIP's mean hand for first-stage sensors) in (flexion, abduction,
-# twist) degrees per joint kind: MCP ~17, PIP ~25, DIP ~10, thumb slightly opposed.
+# twist) degrees per joint kind: MCP ~17, PIP ~25, DIP ~10; the thumb's CMC is the pose of
+# SynthGRAB 2.2's hand (before the opposition frame) re-expressed in that frame.
 _RELAXED_DEG = {
     "mcp": (17.0, 0.0, 0.0), "pip": (25.0, 0.0, 0.0), "dip": (10.0, 0.0, 0.0),
-    "thumb_cmc": (20.0, 0.0, 0.0), "thumb_mcp": (10.0, 0.0, 0.0), "thumb_ip": (10.0, 0.0, 0.0),
+    "thumb_cmc": (-2.1, 10.0, -17.9), "thumb_mcp": (10.0, 0.0, 0.0), "thumb_ip": (10.0, 0.0, 0.0),
 }
 
 

@@ -87,17 +87,17 @@ FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 
 # Pre-shapes as local (flexion, abduction, twist) degrees per joint kind. The thumb's CMC is
 # in its opposition frame (``bodies.hand_template._joint_frames``): its "flexion" opposes the
-# thumb (sweeps it in front of the palm and turns its pad toward the fingertips).
-# Power: fingers open, the thumb out beside the index (SynthGRAB 2.2's pre-shape re-expressed
-# in the opposition frame), so the palm meets the object first and the thumb then opposes.
+# thumb (sweeps it in front of the palm and turns its pad toward the fingertips). The power,
+# lateral and hook thumbs are SynthGRAB 2.2's poses and closing motions re-expressed in that
+# frame (to 0.1 degree), so those grasps are 2.2's; only the pinches changed (2.3).
 _OPEN = {"mcp": (4, 0, 0), "pip": (6, 0, 0), "dip": (4, 0, 0),
-         "thumb_cmc": (-2, 11, 30), "thumb_mcp": (5, 0, 0), "thumb_ip": (5, 0, 0)}
+         "thumb_cmc": (-1.6, -10.7, -29.9), "thumb_mcp": (5, 0, 0), "thumb_ip": (5, 0, 0)}
 # Pinch: the thumb pad meets the index pad head-on. Measured on the procedural hand with
 # tools/pinch_opposition.py: at _PINCH_CLOSED the pads meet with their normals 166 degrees
 # apart (the thumb opposed 116 degrees, its MCP and IP slightly hyperextended as in a pulp
 # pinch). _PINCH opens both so that the pads stand 38 and 39 mm from where the closed tips
-# meet (the object's centre), 70 mm apart with their normals 152 degrees apart; closing
-# (``_THUMB_CMC_PINCH`` for the thumb, flexion for the fingers) brings them together.
+# meet, 70 mm apart with their normals 152 degrees apart; closing (``_THUMB_CMC_PINCH`` for
+# the thumb, flexion for the fingers) brings them together.
 _PINCH_CLOSED = {"mcp": (55, 0, 0), "pip": (25, 0, 0), "dip": (5, 0, 0),
                  "thumb_cmc": (116, 0, 0), "thumb_mcp": (-10, 0, 0), "thumb_ip": (-20, 0, 0)}
 _PINCH = {"mcp": (40, 0, 0), "pip": (20, 0, 0), "dip": (5, 0, 0),
@@ -106,20 +106,22 @@ _TUCKED = {"mcp": (55, 0, 0), "pip": (70, 0, 0), "dip": (35, 0, 0)}
 # A pinch's middle finger: half tucked, clear of the index pad and of the object.
 _HALF_TUCKED = {"mcp": (30, 0, 0), "pip": (45, 0, 0), "dip": (20, 0, 0)}
 # Key (lateral) pinch: the fingers curled, the thumb out to the side, ready to press the
-# object against the side of the index's middle phalanx. (Its thumb and the hook's are the
-# SynthGRAB 2.2 poses re-expressed in the opposition frame, rounded to a degree.)
+# object against the side of the index's middle phalanx.
 _CURLED = {"mcp": (45, 0, 0), "pip": (70, 0, 0), "dip": (30, 0, 0),
-           "thumb_cmc": (11, 26, 21), "thumb_mcp": (0, 0, 0), "thumb_ip": (0, 0, 0)}
+           "thumb_cmc": (10.8, -26.1, -21.2), "thumb_mcp": (0, 0, 0), "thumb_ip": (0, 0, 0)}
 # Hook: the four fingers half bent at the PIP and DIP (a hook, open enough for the bar to come
 # in under the proximal phalanges), the thumb relaxed and adducted along the index's side,
 # where it stays (the hook holds without it).
 _HOOK = {"mcp": (5, 0, 0), "pip": (12, 0, 0), "dip": (8, 0, 0),
-         "thumb_cmc": (-5, -2, 13), "thumb_mcp": (10, 0, 0), "thumb_ip": (10, 0, 0)}
-# Closing direction in local coordinates: every joint flexes, so the thumb's CMC opposes
-# (power); a pinch's thumb closes from _PINCH toward _PINCH_CLOSED (opposing and narrowing
-# its cone); a lateral pinch's thumb comes down onto the side of the index.
+         "thumb_cmc": (-4.7, 1.6, -12.8), "thumb_mcp": (10, 0, 0), "thumb_ip": (10, 0, 0)}
+# Closing direction in local coordinates: the fingers flex; the thumb's CMC closes from
+# _PINCH toward _PINCH_CLOSED (pinches), opposes with some adduction (power: 2.2's motion) or
+# comes down onto the side of the index (lateral). 2.2's joint-limit box ended the power and
+# lateral thumb sweeps after the angles in _THUMB_SWEEP_DEG; they end there still.
 _THUMB_CMC_PINCH = np.array([11.0, 20.0, 0.0]) / np.linalg.norm([11.0, 20.0, 0.0])
-_THUMB_CMC_LATERAL = np.array([-0.30, -0.76, -0.58]) / np.linalg.norm([-0.30, -0.76, -0.58])
+_THUMB_CMC_CLOSE = np.array([0.302, 0.746, -0.594]) / np.linalg.norm([0.302, 0.746, -0.594])
+_THUMB_CMC_LATERAL = np.array([-0.298, 0.755, 0.584]) / np.linalg.norm([-0.298, 0.755, 0.584])
+_THUMB_SWEEP_DEG = {"lateral": 58.14, "power": 21.19}
 # Grasp types of one hand, and the two-handed hold of a large object. The generator draws a
 # type per grasp among those the object's size admits (GraspSynthesizer.grasp_types).
 GRASP_TYPES = ("power", "handle", "precision", "tripod", "lateral", "hook", "bimanual")
@@ -129,7 +131,6 @@ CHORD_STEP, CHORD_REACH = 0.001, 0.06  # m; sampling of the object's chord betwe
 # Largest thinnest extent (m) an object may have for each pinch type: the pre-shapes open
 # the thumb pad 7 cm from the index pad at hand scale 1.
 PINCH_WIDTH = {"precision": 0.055, "tripod": 0.07, "lateral": 0.03}
-POWER_THUMB_OPPOSITION = 70.0  # degrees; the most a wrapping grasp opposes its thumb
 POWER_MIN_WIDTH = 0.048  # m; smaller objects slip out of a closed fist (measured: no grasp)
 LATERAL_MIN_HEIGHT = 0.06  # m; vertical extent a lateral pinch needs above the table
 # A hook needs room beyond its bar for the curled middle and distal phalanges: the handle's
@@ -205,15 +206,17 @@ def preshape_local(kind: str, table: dict | None = None, flat: bool = False) -> 
 
 
 def _close_dirs(kind: str) -> np.ndarray:
-    """Local closing direction per joint (15, 3): flexion, which opposes the thumb's CMC; a
-    pinch's thumb closes toward ``_PINCH_CLOSED``, a lateral grasp's adducts onto the index
-    (a hook's thumb does not close)."""
+    """Local closing direction per joint (15, 3): flexion; the thumb's CMC closes toward
+    ``_PINCH_CLOSED`` (pinches), opposes (power) or adducts onto the index (lateral); a
+    hook's thumb does not close."""
     d = np.zeros((15, 3))
     d[:, 0] = 1.0
     if kind == "lateral":
         d[12] = _THUMB_CMC_LATERAL
     elif kind in PINCH_KINDS:
         d[12] = _THUMB_CMC_PINCH
+    elif kind != "hook":
+        d[12] = _THUMB_CMC_CLOSE
     return d
 
 
@@ -258,9 +261,6 @@ def _level_hands(side: str, scale: float) -> tuple[tuple[ProceduralHand, list[np
     out = []
     for level in range(3):
         bones = [np.array(CHAINS[f][level:]) + 1 for f in FINGERS]
-        # the thumb opposes until its phalanges touch: its metacarpal carries the thenar
-        # skin, which a power grasp rests on the object before the thumb closes
-        bones[0] = np.array(CHAINS["thumb"][max(level, 1):]) + 1
         keep = np.zeros(len(ids), bool)
         for b in bones:
             keep |= np.isin(sub.bone_ids_subset, b)
@@ -695,7 +695,7 @@ class GraspSynthesizer:
         open_, closed = preshape_local(kind), preshape_local(kind, _PINCH_CLOSED)
         poses = open_[None] + f[:, None, None] * (closed - open_)[None]
         k = len(f)
-        _, j = _pose(sub, np.broadcast_to(np.eye(3), (k, 3, 3)), np.zeros((k, 3)), poses)
+        _, j = _pose(sub, np.tile(np.eye(3), (k, 1, 1)), np.zeros((k, 3)), poses)
         fingers = j[:, 17] if kind == "precision" else 0.5 * (j[:, 17] + j[:, 18])
         gap = np.linalg.norm(fingers - j[:, 16], axis=1)  # (K,) tip distance, open to closed
         mid = 0.5 * (fingers + j[:, 16])  # (K, 3) hand frame
@@ -813,11 +813,9 @@ class GraspSynthesizer:
             room = np.stack([_room(local[:, j], dirs[j], lower[j], upper[j]) for j in joints], 1)
             # a pinch leaves the fingers it does not use in their pre-shape, out of the way...
             room[:, [FINGERS.index(f) for f in _IDLE_FINGERS.get(kind, ()) if f not in resting]] = 0
-            if level == 0 and kind not in (*PINCH_KINDS, "lateral", "hook"):
-                # a wrapping thumb opposes only so far, then curls round the object (levels
-                # 1-2); opposed further it stands out in front of the palm, past the object
-                cap = np.radians(POWER_THUMB_OPPOSITION) - local[:, CHAINS["thumb"][0], 0]
-                room[:, 0] = np.clip(np.minimum(room[:, 0], cap), 0.0, None)
+            if level == 0 and kind not in (*PINCH_KINDS, "hook"):
+                sweep = _THUMB_SWEEP_DEG["lateral" if kind == "lateral" else "power"]
+                room[:, 0] = np.minimum(room[:, 0], np.radians(sweep))
             for f, rests in resting.items():  # ...but its resting fingers flex on to the tuck
                 k, j = FINGERS.index(f), CHAINS[f][level]
                 cap = np.radians(_TUCKED[_kind_of(j)][0]) - local[:, j, 0]
