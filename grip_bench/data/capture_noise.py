@@ -301,7 +301,11 @@ def penetration_bias(seq: Sequence, depths: dict[str, float], model: CaptureNois
             dmin = sd.min(axis=1)
             w = smoothstep_weight(dmin, model.contact_distance, model.fade_distance)
             for t in np.flatnonzero(w > 0):
-                sel = sd[t] <= max(model.contact_distance, dmin[t] + PATCH_BAND)
+                # in contact: exactly the contact vertices the statistics measure (a band
+                # past the contact distance would solve for other vertices than it reports)
+                near = (model.contact_distance if dmin[t] <= model.contact_distance
+                        else dmin[t] + PATCH_BAND)
+                sel = sd[t] <= near
                 patch_i.append(np.full(int(sel.sum()), len(items_t)))
                 patch_v.append(vids[sel])
                 s0.append(float(sd[t, sel].mean()))

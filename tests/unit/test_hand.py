@@ -311,10 +311,13 @@ def test_posed_meshes_valid_1000():
 
 
 def test_skinning_does_not_tear_or_collapse(right):
-    """Within limits: no edge stretches past 4x or shrinks to nothing, volume stays within 25%.
+    """Within limits: no edge stretches past 5x or shrinks to nothing, volume stays within 25%.
 
     Edges on the palmar side of a fully flexed PIP legitimately shrink (the skin creases),
-    so the shrink bound only rules out a collapse.
+    so the shrink bound only rules out a collapse. The stretch bound was 4x until the thumb's
+    CMC was framed for opposition (s33): at this corner of its limit box (opposed 125
+    degrees, cone -27, twist -43, a combination no grasp uses) linear blend skinning
+    stretches the thumb-index web's edges to 4.7x; the fist itself stays under 3.1x.
     """
     _, pose, _ = _random_inputs(right, 20, seed=7)
     corner = right.limit_pose(torch.tensor([[[1, 0, 0]] * 15]))  # all flexion maxima
@@ -325,7 +328,7 @@ def test_skinning_does_not_tear_or_collapse(right):
     rest_volume = right.mesh(rest).volume
     for v in verts.numpy():
         ratio = np.linalg.norm(v[e[..., 0]] - v[e[..., 1]], axis=-1) / rest_len
-        assert ratio.min() > 0.03 and ratio.max() < 4.0
+        assert ratio.min() > 0.03 and ratio.max() < 5.0
         assert abs(right.mesh(v).volume / rest_volume - 1.0) < 0.25  # LBS: fist loses ~17%
 
 
