@@ -1,8 +1,11 @@
 """Can the procedural hand's thumb pad face its index pad? The pinch-opposition check.
 
 A pinch squeezes only when the thumb pad and the index pad press against each other
-(docs/physics_hold.md, "Measured in s32"). This measures it on the hand model itself, in
-the hand frame, no data needed:
+(docs/physics_hold.md, "Measured in s32" and "s33"). This measures it on the hand model
+itself, in the hand frame, no data needed. It is the acceptance check of the thumb's
+opposition frame (``bodies.hand_template._joint_frames``): pads 150 degrees apart or more,
+each normal within 30 degrees of the other pad, at 10-50 mm with a naturally flexed index
+(s33: 172 / 176 / 178 degrees; before the opposition frame 123 / 143 / 150).
 
 - **the SynthGRAB pinch pose** (``data.synth.grasp._PINCH_CLOSED``): the angle between the
   two pads' outward normals (180: facing each other) and how far each normal points off the
@@ -12,7 +15,7 @@ the hand frame, no data needed:
   (L-BFGS-B from seeded random starts) so that the pads are the aperture apart with their
   normals opposite and each pointing at the other pad. ``--index natural`` keeps the index
   in a natural pinch (MCP 20-55, PIP 20-75, DIP 5-45 degrees); ``--index free`` lets it go
-  to its limits (the optimum then curls it fully).
+  to its limits.
 
 A pad is the vertex of the distal bone 60 % along the segment whose rest normal faces the
 pad direction most. With mu = 1 two contacts can squeeze when each normal is within 45

@@ -313,7 +313,7 @@ def test_kept_fields_build_each_field_once_and_delegate(tmp_path: Path) -> None:
 
 def test_manipnet_precomputed_targets_equal_the_per_batch_ones(tmp_path: Path) -> None:
     """The targets' vertices and proximity attention, computed once for all rows, equal
-    what the loss computed per batch before (the naive reference), bit for bit."""
+    what the loss computed per batch before (the naive reference), to float32 rounding."""
     from grip_baselines import common as U
     from grip_baselines.manipnet_method import ContactTerms, SeqData, _gt_vertices
 
@@ -342,10 +342,12 @@ def test_manipnet_precomputed_targets_equal_the_per_batch_ones(tmp_path: Path) -
         idx = np.sort(rng.choice(len(target), 9, replace=False))
         with torch.no_grad():
             want = vhand(None, rotation_6d_to_axis_angle(target[idx]), None)[0]
-        assert torch.equal(gt_v[idx], want)
+        torch.testing.assert_close(gt_v[idx], want, rtol=1e-6, atol=1e-9)
         for a, b in zip(plain(pred[idx], target[idx], idx), kept(pred[idx], target[idx], idx),
                         strict=True):
-            assert torch.equal(a, b)
+            # to float32 rounding: on an AVX2 CPU chunked and per-batch GEMMs round differently
+            # in the last bit (bit for bit on the AVX-512 machines of earlier sessions)
+            torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-9)
 
 
 def test_manipnet_scheduled_sampling_equals_full_feature_recomputation(tmp_path: Path) -> None:

@@ -66,6 +66,10 @@ IDLE_CURL = (0.3, 1.9)
 IDLE_CASCADE_DEG = (0.0, 8.0)
 IDLE_SPREAD_DEG = (-4.0, 8.0)
 IDLE_THUMB_DEG = ((-10.0, 15.0), (-10.0, 20.0))
+# SynthGRAB 2.2's thumb-CMC abduction and flexion axes in the CMC's opposition frame
+# (``bodies.hand_template._joint_frames``): the idle thumb varies as it did in 2.2.
+_THUMB_ABDUCTION_22 = np.array([0.4195, -0.3824, -0.8233])
+_THUMB_FLEXION_22 = np.array([0.1736, 0.9240, -0.3407])
 # Stream tags of the draws that must not depend on the intent or on the other draws:
 # the grasp type, the idle hands, whether a use episode regrasps and the regrasp itself.
 KIND_STREAM, IDLE_STREAM, REGRASP_DRAW_STREAM, REGRASP_STREAM = 1, 2, 3, 4
@@ -95,8 +99,9 @@ def idle_pose(hand, rng: np.random.Generator) -> np.ndarray:
         local[list(chain), 0] += np.radians(k * rng.uniform(*IDLE_CASCADE_DEG))
     spread = np.radians(rng.uniform(*IDLE_SPREAD_DEG))
     local[[0, 3, 9, 6], 1] += spread * np.array([1.0, 0.2, -0.6, -1.0])
-    local[12, 1] += np.radians(rng.uniform(*IDLE_THUMB_DEG[0]))
-    local[12, 0] += np.radians(rng.uniform(*IDLE_THUMB_DEG[1]))
+    # the thumb's CMC abducts and flexes about 2.2's bone-frame axes (in its opposition frame)
+    local[12] += np.radians(rng.uniform(*IDLE_THUMB_DEG[0])) * _THUMB_ABDUCTION_22
+    local[12] += np.radians(rng.uniform(*IDLE_THUMB_DEG[1])) * _THUMB_FLEXION_22
     with torch.no_grad():
         pose = hand.from_local(torch.as_tensor(local))
         return hand.clamp(pose).double().numpy()
