@@ -68,12 +68,13 @@ def test_ring_rests_on_a_flute_it_reaches(flute):
     # it flexed from half tucked and stopped before the tuck (at the flute, not the limit)
     assert (flex >= HALF[:, 0] - 1e-9).all() and (flex <= TUCKED[:, 0] + 1e-9).all()
     assert flex[0] > HALF[0, 0] + np.radians(2) and flex[0] < TUCKED[0, 0] - np.radians(2)
-    # naive reference: the same wrist with the ring rigidly tucked goes into the flute
-    tucked = local.copy()
-    tucked[RING] = TUCKED
-    vt, _ = G._pose(hand, g.R[None], g.t[None], tucked[None])
+    # naive reference: the same wrist with the ring flexed 3 degrees further at each joint
+    # goes into the flute (it stopped at the flute, not by chance near it)
+    further = local.copy()
+    further[RING, 0] += np.radians(3.0)
+    vt, _ = G._pose(hand, g.R[None], g.t[None], further[None])
     sdt = tools.df.exact_signed_distance(vt[0])
-    assert sdt[ring].min() < sd[ring].min() - 0.002
+    assert sdt[ring].min() < min(sd[ring].min(), 0.0)
     np.testing.assert_allclose(local[PINKY], g_pre(g, hand)[PINKY], atol=1e-9)  # rigid
 
 
