@@ -125,3 +125,43 @@ def test_hold_score_picks_the_holding_grasp_among_the_same_parts(monkeypatch):
         g = gs.search(*args, np.random.default_rng(1))
         assert g.contact_parts == best.contact_parts
         assert (not np.allclose(g.t, best.t)) == moves
+
+
+def test_chord_through_a_sphere_and_outside_it():
+    """``_chord``: a line through a sphere's centre leaves it a radius away on both sides
+    (to the 1 mm sampling); from a point outside the object there is no chord (NaN)."""
+    obj, _, gs = _synth("spheremedium")
+    radius = 0.5 * float(obj.mesh.extents.max())
+    centre = np.asarray(obj.mesh.bounding_box.centroid, float)
+    dirs = np.array([[1.0, 0.0, 0.0], [0.0, 0.6, 0.8]])
+    lo, hi = gs._chord(centre, dirs)
+    np.testing.assert_allclose(-lo, radius, atol=0.0015)
+    np.testing.assert_allclose(hi, radius, atol=0.0015)
+    lo, hi = gs._chord(centre + np.array([0.0, 2.0 * radius, 0.0]), dirs)
+    assert np.isnan(lo).all() and np.isnan(hi).all()
+
+
+def test_pinch_placement_straddles_the_chord():
+    """``_pinch_placement``: the tips, at the pose of the closing path it picks, are wider
+    apart than the object's chord along their line and centred on it (naive reference: the
+    posed tips and the chord found by marching along the posed line)."""
+    obj, df, gs = _synth("spheresmall")
+    sub = G._light_hand("right", 1.0)[2]
+    target = np.asarray(obj.mesh.bounding_box.centroid, float)
+    R = np.eye(3)[None]
+    t = gs._pinch_placement(sub, R, "precision", target)
+    assert np.isfinite(t).all()
+    f = np.linspace(0.0, 1.0, G.PINCH_FIT_STEPS + 1)
+    open_ = G.preshape_local("precision")
+    closed = G.preshape_local("precision", G._PINCH_CLOSED)
+    poses = open_[None] + f[:, None, None] * (closed - open_)[None]
+    _, j = G._pose(sub, np.tile(R, (len(f), 1, 1)), np.tile(t, (len(f), 1)), poses)
+    gaps = np.linalg.norm(j[:, 17] - j[:, 16], axis=1)
+    mids = 0.5 * (j[:, 17] + j[:, 16])
+    k = int(np.argmin(np.linalg.norm(mids - target, axis=1)))  # the pose it centred
+    u = (j[k, 17] - j[k, 16]) / gaps[k]
+    s = np.arange(-0.06, 0.06, 1e-4)
+    inside = df.exact_signed_distance(mids[k] + s[:, None] * u) < 0
+    chord = float(s[inside].max() - s[inside].min())
+    assert gaps[k] >= chord  # the tips clear the object...
+    assert np.linalg.norm(mids[k] - target) < 0.004  # ...centred on it (to the 1 mm grid)
