@@ -699,12 +699,13 @@ class GraspSynthesizer:
         fingers = j[:, 17] if kind == "precision" else 0.5 * (j[:, 17] + j[:, 18])
         gap = np.linalg.norm(fingers - j[:, 16], axis=1)  # (K,) tip distance, open to closed
         mid = 0.5 * (fingers + j[:, 16])  # (K, 3) hand frame
-        u = _unit_rows(fingers[k // 2] - j[k // 2, 16])  # the pinch line, mid-path
-        lo, hi = self._chord(target, np.einsum("cij,j->ci", R, u))  # (C,) each
+        u = fingers[k // 2] - j[k // 2, 16]  # the pinch line, mid-path
+        line = np.einsum("cij,j->ci", R, u / np.linalg.norm(u))  # (C, 3) object frame
+        lo, hi = self._chord(target, line)  # (C,) each
         chord = hi - lo
         wide = gap[None, :] >= chord[:, None] + 2.0 * GAP  # (C, K) tips clear of the chord
         step = np.where(wide.any(1), np.where(wide, np.arange(k), -1).max(1), 0)
-        centre = target[None] + 0.5 * (lo + hi)[:, None] * np.einsum("cij,j->ci", R, u)
+        centre = target[None] + 0.5 * (lo + hi)[:, None] * line
         t = centre - np.einsum("cij,cj->ci", R, mid[step])
         t[~(wide.any(1) & np.isfinite(chord))] = np.nan
         return t
@@ -963,11 +964,6 @@ def _clear_of(v: np.ndarray, avoid: np.ndarray | None) -> np.ndarray:
         v.reshape(-1, 3), distance_upper_bound=AVOID_CLEARANCE
     )
     return np.isinf(d).reshape(len(v), -1).all(1)
-
-
-def _unit_rows(v: np.ndarray) -> np.ndarray:
-    """``v`` (..., 3) scaled to unit length along the last axis."""
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
