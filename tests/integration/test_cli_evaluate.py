@@ -157,7 +157,7 @@ def test_help_lists_metrics_and_masks(capsys):
         main(["evaluate", "--help"])
     assert e.value.code == 0
     text = capsys.readouterr().out
-    for token in ("mpjpe", "contact_drift", "sim_disp_hold", "held", "4.5 mm", "--per-frame"):
+    for token in ("mpjpe", "contact_drift", "hold_sim", "held", "4.5 mm", "--per-frame"):
         assert token in text
 
 

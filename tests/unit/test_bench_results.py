@@ -22,8 +22,8 @@ from grip_bench.results.schema import (
 )
 
 UNITS = {"mpvpe": "mm", "mpjpe": "mm", "cc": "mm", "iv": "cm3", "contact_ratio": "%",
-         "sim_stable": "%", "sim_disp": "mm", "sim_disp_hold": "mm", "hold_qs": "%",
-         "hold_qs_mu3": "%", "contact_drift": "mm"}
+         "sim_stable": "%", "sim_disp": "mm", "hold_sim": "%", "hold_sim_disp": "mm",
+         "hold_qs": "%", "hold_qs_mu3": "%", "contact_drift": "mm"}
 
 
 def synthetic_results(methods=("grip", "grip-no-rnet", "gt"), perturbations=("none",),

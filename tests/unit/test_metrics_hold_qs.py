@@ -228,3 +228,62 @@ def test_posed_hands_feed_the_articulated_hold_test(fixture):
         assert not r.diverged and np.isfinite(r.settle)
         if held is not None:
             assert r.held == held
+
+
+def _hold_sim(pred, gt, lib, failures=None) -> dict[tuple[str, str], float]:
+    from grip_bench.metrics.intersection import FailureCounter
+
+    rows, _ = evaluate_sequence(pred, gt, lib, options=EvalOptions(
+        metrics=("hold_sim", "hold_sim_disp")), failures=failures or FailureCounter())
+    return {(r.hand, r.metric): r.value for r in rows}
+
+
+def test_hold_sim_is_the_articulated_test_on_the_drawn_frames(fixture):
+    """Metric ``hold_sim`` / ``hold_sim_disp`` against a naive loop over the drawn frames
+    calling ``hold.hand_scene`` / ``hold.hold`` directly (share held; median of the capped
+    displacements); the flat hand at the ground-truth wrist drops the cylinder everywhere."""
+    from grip_bench.metrics.evaluate import (
+        SequencePair,
+        object_pose,
+        physics_frames,
+        posed_hands,
+    )
+    from grip_bench.metrics.intersection import FailureCounter
+
+    lib, seqs = fixture
+    cylinder = seqs[1]
+    flat = cylinder.with_hands(**{side: {"hand_pose": np.zeros_like(
+        cylinder.hand_params(side)["hand_pose"])} for side in ("right", "left")})
+    for pred in (cylinder, flat):
+        got = _hold_sim(pred, cylinder, lib)
+        pair = SequencePair(pred, cylinder, lib, EvalOptions(), FailureCounter())
+        for side in ("right", "left"):
+            res = []
+            for t in physics_frames(pair, side):
+                scene = H.hand_scene(posed_hands(pair, int(t)), pair.mesh,
+                                     object_pose(pair, int(t)), pair.options.up)
+                res.append(H.hold(scene, pair.options.up)[0])
+            assert got[(side, "hold_sim")] == pytest.approx(100 * np.mean([r.held for r in res]))
+            assert got[(side, "hold_sim_disp")] == pytest.approx(1e3 * np.median(  # mm
+                [min(r.displacement, C.HOLD_DISP_CAP) for r in res]))
+    flat_got = _hold_sim(flat, cylinder, lib)
+    assert flat_got[("right", "hold_sim")] == 0.0
+    assert flat_got[("right", "hold_sim_disp")] > 1e3 * C.HOLD_DISP
+
+
+def test_hold_sim_is_nan_and_counted_where_the_hand_model_cannot_be_articulated(fixture,
+                                                                                monkeypatch):
+    """A hand model whose template lacks the track's vertices (MANO's sealed wrist): NaN,
+    never 0, and a failure note, not an exception."""
+    from grip_bench.metrics import evaluate as E
+    from grip_bench.metrics.intersection import FailureCounter
+
+    def refuse(pair, t):
+        raise ValueError("the right hand's template has 778 vertices, its track 779")
+
+    monkeypatch.setattr(E, "posed_hands", refuse)
+    lib, seqs = fixture
+    failures = FailureCounter()
+    got = _hold_sim(seqs[0], seqs[0], lib, failures)
+    assert got and all(np.isnan(v) for v in got.values())
+    assert any("articulated hold test not run" in k for k in failures.reasons)
