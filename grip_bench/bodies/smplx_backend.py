@@ -339,6 +339,18 @@ class MANOHand(nn.Module):
         tips = verts[:, self.fingertip_ids]
         return verts, torch.cat([joints + shift[:, None], tips], dim=1)
 
+    @property
+    def template_vertices(self) -> torch.Tensor:
+        """The sealed rest template (V + loops, 3): the model's (or the subject's) template
+        with its sealing centres, vertex for vertex the posed meshes' layout (the articulated
+        hold test builds its collision pieces on it)."""
+        return self._with_centres(self.layer.v_template[None])[0]
+
+    @property
+    def parents(self) -> tuple[int, ...]:
+        """Parent of each of MANO's 16 joints (-1 for the wrist), MANO order."""
+        return tuple(int(p) for p in self.layer.parents)
+
     def _with_centres(self, verts: torch.Tensor) -> torch.Tensor:
         """Append each sealing centre: the mean of its posed loop.
 

@@ -661,8 +661,8 @@ def simulate_frame(pair: SequencePair, t: int, protocol: str) -> StabilityResult
 def posed_hands(pair: SequencePair, t: int) -> list:
     """The predicted hands the ground truth holds with at frame ``t``, as the articulated
     hold test's :class:`~.hold.PosedHand` (world frame; metric ``hold_sim``). Needs a hand
-    model whose template has the track's vertices (the procedural hand; MANO's sealed wrist
-    adds vertices its template lacks)."""
+    model whose template has the track's vertices (the procedural hand; MANO's sealed
+    template, ``MANOHand.template_vertices``), else a ValueError."""
     from .hold import PosedHand, hand_pieces
 
     out = []
@@ -713,7 +713,7 @@ def hold_frame(pair: SequencePair, t: int) -> HoldResult | None:
     """The articulated MuJoCo hold test (``metrics.hold``) of frame ``t`` with every predicted
     hand the GT holds with there, world gravity, cached per frame (a bimanual frame is one
     test); None where it cannot run: a non-finite hand, or a hand model whose template lacks
-    the track's vertices (MANO's sealed wrist), each counted as a failure note."""
+    the track's vertices, the latter counted as a failure note."""
     from .hold import hand_scene, hold
 
     key = (t, "articulated hold")
@@ -745,7 +745,7 @@ def _hold_sim(pair: SequencePair, side: str) -> tuple[np.ndarray, list[HoldResul
         "position servos, wrist fixed), its fingers within 2 mm tightened 1.5 mm, holds the "
         "object through 0.2 s of settling and 1 s under the frame's gravity (moves < 2 cm, "
         "turns < 15 degrees, settles <= 5 mm; diverged = failed; mu = 1; [run] "
-        "physics_frames held frames; not computable with MANO's sealed-wrist mesh)",
+        "physics_frames held frames)",
         leaderboard=False)
 def m_hold_sim(pair: SequencePair, side: str) -> Measured:
     idx, res = _hold_sim(pair, side)

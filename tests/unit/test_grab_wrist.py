@@ -287,3 +287,30 @@ def test_procedural_files_carry_no_marker(tmp_path):
         assert f"{HAND_TRANSL_KEY}.npy" not in zf.namelist()
     assert read_grab_header(path)[HAND_TRANSL_KEY] == "wrist"
     _same(seq, read_grab(path, mano_backend=FakeMano()))  # never converted
+
+
+def test_the_articulated_hold_test_runs_on_mano_hands(grab):
+    """MANO hands (sealed wrist) enter the articulated hold test: the sealed template has the
+    posed meshes' vertices, the bodies follow MANO's kinematic tree, and a frame's test runs
+    (here the fixture's tube hands do not touch the box, so it falls: not held, no NaN)."""
+    from grip_bench.bodies.layouts import MANO_PARENTS
+    from grip_bench.data.library import ObjectLibrary
+    from grip_bench.metrics.evaluate import EvalOptions, SequencePair, hold_frame, posed_hands
+    from grip_bench.metrics.intersection import FailureCounter
+
+    path, _, models, _ = grab
+    seq = _read(path, models)
+    failures = FailureCounter()
+    pair = SequencePair(seq, seq, ObjectLibrary(path.parents[2]),
+                        EvalOptions(model_path=str(models), up=(0.0, 0.0, 1.0)), failures)
+    pair._grasp.update({f"held:{s}": np.ones(seq.n_frames, bool) for s, _ in SIDES})
+    hands = posed_hands(pair, 3)
+    assert len(hands) == 2
+    for hand, (side, _) in zip(hands, SIDES, strict=True):
+        assert len(hand.vertices) == len(pair.poser.hands[side].template_vertices) == 778 + 1
+        assert hand.parents == tuple(MANO_PARENTS) and hand.parents[0] == -1
+        np.testing.assert_array_equal(hand.vertices, pair.track("pred", side).verts[3])
+        assert len(hand.pieces) > 0
+    res = hold_frame(pair, 3)
+    assert res is not None and not res.held and np.isfinite(res.settle)
+    assert failures.count == 0

@@ -273,8 +273,8 @@ def test_hold_sim_is_the_articulated_test_on_the_drawn_frames(fixture):
 
 def test_hold_sim_is_nan_and_counted_where_the_hand_model_cannot_be_articulated(fixture,
                                                                                 monkeypatch):
-    """A hand model whose template lacks the track's vertices (MANO's sealed wrist): NaN,
-    never 0, and a failure note, not an exception."""
+    """A hand model whose template lacks the track's vertices: NaN, never 0, and a failure
+    note, not an exception."""
     from grip_bench.metrics import evaluate as E
     from grip_bench.metrics.intersection import FailureCounter
 
