@@ -485,24 +485,29 @@ def world_up(cfg: RunConfig) -> tuple[float, float, float]:
 def set_metrics(cfg: RunConfig, label: str, method: str | None = None) -> list[str]:
     """Metric ids evaluated on test set ``label`` (for ``method``), sorted.
 
-    The clean set gets every chosen metric (the leaderboard shows them all), except for
-    an ablation variant (``MethodSpec.variant_of``), which is compared only in its tables;
-    a perturbed set gets only those a chosen table reads on it for that method (Table 3:
-    MPVPE, MPJPE; the physics table: its columns for the GRAB-T 0.01 input, not for the
-    methods refining that input). This spares the costly physics and intersection metrics
-    where no table shows them.
+    The clean set gets every leaderboard metric (the leaderboard shows them all) and the
+    table-only ones (``MetricSpec.leaderboard`` False: the articulated hold test, the hold
+    check's friction and gravity variants) where a chosen table reads them for that method;
+    metrics the profile names (``[run] metrics``) go to every method. An ablation variant
+    (``MethodSpec.variant_of``) is compared only in its tables; a perturbed set gets only
+    those a chosen table reads on it for that method (Table 3: MPVPE, MPJPE; the physics
+    table: its columns for the GRAB-T 0.01 input, not for the methods refining that input).
+    This spares the costly physics and intersection metrics where nothing shows them.
     """
     from ..methods.api import METHODS
     from ..metrics.registry import METRICS
 
-    chosen = list(cfg.settings["metrics"] or METRICS.names())
+    named = list(cfg.settings["metrics"])
+    chosen = named or METRICS.names()
     variant = method is not None and method in METHODS and METHODS.get(method).variant_of
-    if label == CLEAN and not variant:
+    if label == CLEAN and not variant and named:
         return sorted(chosen)
     read = {flt.get("metric") for col, flt in _table_cells(cfg)
             if flt.get("perturbation", CLEAN) == label
             and (method is None or method in _cell_methods(col, flt)
                  or (not variant and flt.get("method") is None))}
+    if label == CLEAN and not variant:
+        return sorted(m for m in chosen if METRICS.get(m).leaderboard or m in read)
     return sorted(m for m in chosen if m in read)
 
 
