@@ -20,4 +20,6 @@ fi
 # docs/architecture.md (pyproject.toml [tool.importlinter]), before the tests
 ruff check grip_bench baselines tests tools
 lint-imports --no-cache
-python -m pytest -q -p no:cacheprovider "$@"
+# two test processes (GRIP_BENCH_TEST_WORKERS; 0 = one, in this process), each taking whole
+# files so that a file's module fixtures are built once; CI's machine has 2 cores
+python -m pytest -q -p no:cacheprovider -n "${GRIP_BENCH_TEST_WORKERS:-2}" --dist loadfile "$@"
