@@ -14,7 +14,15 @@ from grip_bench.data.library import ObjectLibrary
 from grip_bench.geometry import wrench as W
 from grip_bench.metrics import hold as H
 from grip_bench.metrics import validity as V
-from grip_bench.metrics.evaluate import EvalOptions, evaluate_sequence
+from grip_bench.metrics.evaluate import (
+    EvalOptions,
+    SequencePair,
+    evaluate_sequence,
+    object_pose,
+    physics_frames,
+    posed_hands,
+)
+from grip_bench.metrics.intersection import FailureCounter
 from tests.eval_fixtures import grasp_dataset
 
 HALF = 0.02  # m, half the side of the analytic cube (centre of mass at the origin)
@@ -152,9 +160,7 @@ def test_ground_truth_holds_and_degraded_hands_do_not(fixture):
 def test_the_flat_hand_at_the_ground_truth_wrist_does_not_hold(fixture):
     lib, seqs = fixture
     for gt in seqs:
-        flat = gt.with_hands(**{side: {"hand_pose": np.zeros_like(
-            gt.hand_params(side)["hand_pose"])} for side in ("right", "left")})
-        got = _hold_qs(flat, gt, lib)
+        got = _hold_qs(_flat(gt), gt, lib)
         assert all(v == 0.0 for v in got.values() if np.isfinite(v)), (gt.name, got)
 
 
@@ -199,22 +205,19 @@ def test_sensitivity_columns_stay_off_the_leaderboard():
                    for m in ("hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes"))
 
 
+def _flat(seq):
+    """``seq`` with both hands' fingers flat (the wrists as given)."""
+    return seq.with_hands(**{side: {"hand_pose": np.zeros_like(
+        seq.hand_params(side)["hand_pose"])} for side in ("right", "left")})
+
+
 def test_posed_hands_feed_the_articulated_hold_test(fixture):
     """``evaluate.posed_hands``: the hands the ground truth holds with, as the track has them,
     with the hand model's pieces; the articulated test runs on them (bench row) and drops
     the object the flat hand at the ground-truth wrist cannot hold."""
-    from grip_bench.metrics.evaluate import (
-        SequencePair,
-        object_pose,
-        physics_frames,
-        posed_hands,
-    )
-    from grip_bench.metrics.intersection import FailureCounter
-
     lib, seqs = fixture
     cylinder = seqs[1]
-    flat = cylinder.with_hands(**{side: {"hand_pose": np.zeros_like(
-        cylinder.hand_params(side)["hand_pose"])} for side in ("right", "left")})
+    flat = _flat(cylinder)
     for pred, held in ((cylinder, None), (flat, False)):
         pair = SequencePair(pred, cylinder, lib, EvalOptions(), FailureCounter())
         t = int(physics_frames(pair, "right")[0])
@@ -231,8 +234,6 @@ def test_posed_hands_feed_the_articulated_hold_test(fixture):
 
 
 def _hold_sim(pred, gt, lib, failures=None) -> dict[tuple[str, str], float]:
-    from grip_bench.metrics.intersection import FailureCounter
-
     rows, _ = evaluate_sequence(pred, gt, lib, options=EvalOptions(
         metrics=("hold_sim", "hold_sim_disp")), failures=failures or FailureCounter())
     return {(r.hand, r.metric): r.value for r in rows}
@@ -242,18 +243,9 @@ def test_hold_sim_is_the_articulated_test_on_the_drawn_frames(fixture):
     """Metric ``hold_sim`` / ``hold_sim_disp`` against a naive loop over the drawn frames
     calling ``hold.hand_scene`` / ``hold.hold`` directly (share held; median of the capped
     displacements); the flat hand at the ground-truth wrist drops the cylinder everywhere."""
-    from grip_bench.metrics.evaluate import (
-        SequencePair,
-        object_pose,
-        physics_frames,
-        posed_hands,
-    )
-    from grip_bench.metrics.intersection import FailureCounter
-
     lib, seqs = fixture
     cylinder = seqs[1]
-    flat = cylinder.with_hands(**{side: {"hand_pose": np.zeros_like(
-        cylinder.hand_params(side)["hand_pose"])} for side in ("right", "left")})
+    flat = _flat(cylinder)
     for pred in (cylinder, flat):
         got = _hold_sim(pred, cylinder, lib)
         pair = SequencePair(pred, cylinder, lib, EvalOptions(), FailureCounter())
@@ -276,7 +268,6 @@ def test_hold_sim_is_nan_and_counted_where_the_hand_model_cannot_be_articulated(
     """A hand model whose template lacks the track's vertices: NaN, never 0, and a failure
     note, not an exception."""
     from grip_bench.metrics import evaluate as E
-    from grip_bench.metrics.intersection import FailureCounter
 
     def refuse(pair, t):
         raise ValueError("the right hand's template has 778 vertices, its track 779")
