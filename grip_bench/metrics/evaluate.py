@@ -712,8 +712,9 @@ def m_sim_disp(pair: SequencePair, side: str) -> Measured:
 def hold_frame(pair: SequencePair, t: int) -> HoldResult | None:
     """The articulated MuJoCo hold test (``metrics.hold``) of frame ``t`` with every predicted
     hand the GT holds with there, world gravity, cached per frame (a bimanual frame is one
-    test); None where it cannot run: a non-finite hand, or a hand model whose template lacks
-    the track's vertices, the latter counted as a failure note."""
+    test); None where it cannot run: a non-finite hand, a hand model whose template lacks
+    the track's vertices or a scene MuJoCo will not compile (the latter two counted as
+    failure notes)."""
     from .hold import hand_scene, hold
 
     key = (t, "articulated hold")
@@ -727,10 +728,14 @@ def hold_frame(pair: SequencePair, t: int) -> HoldResult | None:
                                  for h in hands)
         res = None
         if ok:
-            scene = hand_scene(hands, pair.mesh, object_pose(pair, t), pair.options.up)
-            res = hold(scene, pair.options.up)[0]
-            if res.diverged:
-                pair.failures.add("simulation diverged (articulated hold)")
+            try:  # MuJoCo refuses a degenerate piece (a method's collapsed hand) at compile
+                scene = hand_scene(hands, pair.mesh, object_pose(pair, t), pair.options.up)
+            except ValueError as e:
+                pair.failures.add(f"articulated hold scene not built: {e}")
+            else:
+                res = hold(scene, pair.options.up)[0]
+                if res.diverged:
+                    pair.failures.add("simulation diverged (articulated hold)")
         pair._sims[key] = res
     return pair._sims[key]
 

@@ -278,3 +278,19 @@ def test_hold_sim_is_nan_and_counted_where_the_hand_model_cannot_be_articulated(
     got = _hold_sim(seqs[0], seqs[0], lib, failures)
     assert got and all(np.isnan(v) for v in got.values())
     assert any("articulated hold test not run" in k for k in failures.reasons)
+
+
+def test_a_scene_mujoco_refuses_is_nan_and_counted(fixture, monkeypatch):
+    """A scene that does not compile (MuJoCo raises ValueError on a degenerate mesh, e.g. a
+    method's collapsed hand) is NaN and a failure note, and the other metrics go on."""
+    from grip_bench.metrics import hold as hold_module
+
+    def refuse(*args, **kwargs):
+        raise ValueError("mesh volume is too small")
+
+    monkeypatch.setattr(hold_module, "hand_scene", refuse)
+    lib, seqs = fixture
+    failures = FailureCounter()
+    got = _hold_sim(seqs[0], seqs[0], lib, failures)
+    assert got and all(np.isnan(v) for v in got.values())
+    assert any("articulated hold scene not built" in k for k in failures.reasons)
