@@ -263,34 +263,23 @@ def test_hold_sim_is_the_articulated_test_on_the_drawn_frames(fixture):
     assert flat_got[("right", "hold_sim_disp")] > 1e3 * C.HOLD_DISP
 
 
-def test_hold_sim_is_nan_and_counted_where_the_hand_model_cannot_be_articulated(fixture,
-                                                                                monkeypatch):
-    """A hand model whose template lacks the track's vertices: NaN, never 0, and a failure
+@pytest.mark.parametrize("module, name, note", [
+    ("evaluate", "posed_hands", "articulated hold test not run"),  # template lacks vertices
+    ("hold", "hand_scene", "articulated hold scene not built"),  # MuJoCo refuses a mesh
+])
+def test_hold_sim_is_nan_and_counted_where_the_test_cannot_run(fixture, monkeypatch, module,
+                                                               name, note):
+    """A hand model whose template lacks the track's vertices, or a scene MuJoCo will not
+    compile (a degenerate mesh, e.g. a method's collapsed hand): NaN, never 0, and a failure
     note, not an exception."""
-    from grip_bench.metrics import evaluate as E
-
-    def refuse(pair, t):
-        raise ValueError("the right hand's template has 778 vertices, its track 779")
-
-    monkeypatch.setattr(E, "posed_hands", refuse)
-    lib, seqs = fixture
-    failures = FailureCounter()
-    got = _hold_sim(seqs[0], seqs[0], lib, failures)
-    assert got and all(np.isnan(v) for v in got.values())
-    assert any("articulated hold test not run" in k for k in failures.reasons)
-
-
-def test_a_scene_mujoco_refuses_is_nan_and_counted(fixture, monkeypatch):
-    """A scene that does not compile (MuJoCo raises ValueError on a degenerate mesh, e.g. a
-    method's collapsed hand) is NaN and a failure note, and the other metrics go on."""
-    from grip_bench.metrics import hold as hold_module
+    import importlib
 
     def refuse(*args, **kwargs):
-        raise ValueError("mesh volume is too small")
+        raise ValueError("refused")
 
-    monkeypatch.setattr(hold_module, "hand_scene", refuse)
+    monkeypatch.setattr(importlib.import_module(f"grip_bench.metrics.{module}"), name, refuse)
     lib, seqs = fixture
     failures = FailureCounter()
     got = _hold_sim(seqs[0], seqs[0], lib, failures)
     assert got and all(np.isnan(v) for v in got.values())
-    assert any("articulated hold scene not built" in k for k in failures.reasons)
+    assert any(note in k for k in failures.reasons)
