@@ -20,10 +20,13 @@ fi
 # docs/architecture.md (pyproject.toml [tool.importlinter]), before the tests
 ruff check grip_bench baselines tests tools
 lint-imports --no-cache
-# GRIP_BENCH_TEST_WORKERS=N runs the tests in N processes (pytest-xdist), each taking whole
-# files so that a file's module fixtures are built once; by default one process (the
-# parallel run passed twice in s34 but its speed-up on quiet cores is not measured yet)
-WORKERS=${GRIP_BENCH_TEST_WORKERS:-0}
+# The tests run in N processes (pytest-xdist), each taking whole files so that a file's
+# module fixtures are built once: by default one per core, at most 4 (on 2 quiet cores the
+# run takes 9.6 min against 14.7 in one process, s35); GRIP_BENCH_TEST_WORKERS=N sets N,
+# 0 runs one process
+CORES=$(nproc 2>/dev/null || echo 1)
+WORKERS=${GRIP_BENCH_TEST_WORKERS:-$(( CORES < 4 ? CORES : 4 ))}
+[ "$WORKERS" = 1 ] && WORKERS=0  # one worker process is one process with extra start-up
 XDIST=()
 if [ "$WORKERS" != 0 ]; then XDIST=(-n "$WORKERS" --dist loadfile); fi
 python -m pytest -q -p no:cacheprovider ${XDIST[@]+"${XDIST[@]}"} "$@"

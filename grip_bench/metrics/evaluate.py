@@ -67,13 +67,14 @@ if TYPE_CHECKING:
     from ..data.posing import MANOPoser, ProceduralPoser
     from ..data.sequence import Sequence
     from ..geometry.distance import DistanceField
-    from .hold import HoldResult
+    from .hold import HoldResult, Scene
     from .physics import StabilityResult
 
 # the metrics ``EvalOptions.physics`` switches off: MuJoCo's and the quasi-static hold check,
 # all on the same drawn held frames (``physics_frames``)
 PHYSICS_METRICS = ("hold_qs", "hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes", "sim_stable",
-                   "sim_disp", "hold_sim", "hold_sim_disp")
+                   "sim_disp", "hold_sim", "hold_sim_disp", "hold_sim_mu05", "hold_sim_mu3",
+                   "hold_sim_axes")
 
 
 @dataclass(frozen=True)
@@ -709,15 +710,16 @@ def m_sim_disp(pair: SequencePair, side: str) -> Measured:
     return _sim(pair, side, "paper", "displacement")
 
 
-def hold_frame(pair: SequencePair, t: int) -> HoldResult | None:
-    """The articulated MuJoCo hold test (``metrics.hold``) of frame ``t`` with every predicted
-    hand the GT holds with there, world gravity, cached per frame (a bimanual frame is one
-    test); None where it cannot run: a non-finite hand, a hand model whose template lacks
-    the track's vertices or a scene MuJoCo will not compile (the latter two counted as
-    failure notes)."""
-    from .hold import hand_scene, hold
+def hold_scene(pair: SequencePair, t: int) -> Scene | None:
+    """The articulated hold test's compiled scene (``metrics.hold.hand_scene``) of frame
+    ``t`` with every predicted hand the GT holds with there, cached per frame (its gravity,
+    friction variants and directions reuse it; at most ``2 max_physics_frames`` a sequence);
+    None where it cannot be built: a non-finite hand, a hand model whose template lacks the
+    track's vertices or a scene MuJoCo will not compile (the latter two counted as failure
+    notes)."""
+    from .hold import hand_scene
 
-    key = (t, "articulated hold")
+    key = (t, "articulated scene")
     if key not in pair._sims:
         try:
             hands = posed_hands(pair, t)
@@ -726,35 +728,69 @@ def hold_frame(pair: SequencePair, t: int) -> HoldResult | None:
             hands = []
         ok = bool(hands) and all(np.isfinite(h.vertices).all() and np.isfinite(h.signed_dist).all()
                                  for h in hands)
-        res = None
+        scene = None
         if ok:
             try:  # MuJoCo refuses a degenerate piece (a method's collapsed hand) at compile
                 scene = hand_scene(hands, pair.mesh, object_pose(pair, t), pair.options.up)
             except ValueError as e:
                 pair.failures.add(f"articulated hold scene not built: {e}")
-            else:
-                res = hold(scene, pair.options.up)[0]
-                if res.diverged:
-                    pair.failures.add("simulation diverged (articulated hold)")
-        pair._sims[key] = res
+        pair._sims[key] = scene
     return pair._sims[key]
 
 
-def _hold_sim(pair: SequencePair, side: str) -> tuple[np.ndarray, list[HoldResult | None]]:
+def hold_frame(pair: SequencePair, t: int, mu: float = C.SIM_FRICTION,
+               axis: str | None = None) -> HoldResult | None:
+    """The articulated MuJoCo hold test (``metrics.hold``) of frame ``t`` (:func:`hold_scene`)
+    with friction ``mu`` under the world's gravity (``axis`` None) or gravity along one of
+    ``hold.AXES``, cached per (frame, mu, direction); None where the scene cannot be built.
+    The six directions of a (frame, mu) share one settle (``hold.hold``); the axis that is the
+    world's own gravity is the world test."""
+    return _hold_runs(pair, t, mu, (axis,))[0]
+
+
+def _hold_runs(pair: SequencePair, t: int, mu: float,
+               axes: tuple[str | None, ...]) -> list[HoldResult | None]:
+    """:func:`hold_frame` of several directions; the uncached ones run after one settle."""
+    from .hold import gravity_along, hold
+
+    up = np.asarray(pair.options.up, np.float64)
+    world = gravity_along(None, up)
+    axes = tuple(None if a is not None and np.array_equal(gravity_along(a, up), world) else a
+                 for a in axes)
+    keys = {a: (t, "articulated hold", mu, a) for a in axes}
+    todo = tuple(dict.fromkeys(a for a in axes if keys[a] not in pair._sims))
+    if todo:
+        scene = hold_scene(pair, t)
+        res = [None] * len(todo) if scene is None else hold(scene, pair.options.up, todo, mu)
+        for a, r in zip(todo, res, strict=True):
+            if r is not None and r.diverged:
+                pair.failures.add("simulation diverged (articulated hold)")
+            pair._sims[keys[a]] = r
+    return [pair._sims[keys[a]] for a in axes]
+
+
+def _hold_sim(pair: SequencePair, side: str, mu: float = C.SIM_FRICTION
+              ) -> tuple[np.ndarray, list[HoldResult | None]]:
     idx = physics_frames(pair, side)
-    return idx, [hold_frame(pair, int(t)) for t in idx]
+    return idx, [hold_frame(pair, int(t), mu) for t in idx]
+
+
+def _held(res: list[HoldResult | None]) -> np.ndarray:
+    return np.asarray([np.nan if r is None else float(r.held) for r in res], dtype=np.float64)
+
+
+_HOLD_DEF = ("the articulated hand (one body per bone, capped position servos, wrist fixed), "
+             "its fingers within 2 mm tightened 1.5 mm, holds the object through 0.2 s of "
+             "settling and 1 s under {g} (moves < 2 cm, turns < 15 degrees, settles <= 5 mm; "
+             "diverged = failed; mu = {mu}; [run] physics_frames held frames)")
 
 
 @metric("hold_sim", "Articulated hold (MuJoCo)", "%", 1e2, True, "held", 1,
-        "share of tested held frames where the articulated hand (one body per bone, capped "
-        "position servos, wrist fixed), its fingers within 2 mm tightened 1.5 mm, holds the "
-        "object through 0.2 s of settling and 1 s under the frame's gravity (moves < 2 cm, "
-        "turns < 15 degrees, settles <= 5 mm; diverged = failed; mu = 1; [run] "
-        "physics_frames held frames)",
+        "share of tested held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=1),
         leaderboard=False)
 def m_hold_sim(pair: SequencePair, side: str) -> Measured:
     idx, res = _hold_sim(pair, side)
-    return Measured(idx, np.asarray([np.nan if r is None else float(r.held) for r in res]))
+    return Measured(idx, _held(res))
 
 
 @metric("hold_sim_disp", "Articulated hold displacement", "mm", 1e3, False, "held", 1,
@@ -768,6 +804,36 @@ def m_hold_sim_disp(pair: SequencePair, side: str) -> Measured:
     ok = np.isfinite(vals)
     return Measured(idx, vals, value=float(np.median(vals[ok])) if ok.any() else float("nan"),
                     frame_rows=False)
+
+
+@metric("hold_sim_mu05", "Articulated hold (mu = 0.5)", "%", 1e2, True, "held", 1,
+        "hold_sim at mu = 0.5 (friction sensitivity; physics table only): share of tested "
+        "held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=0.5),
+        leaderboard=False)
+def m_hold_sim_mu05(pair: SequencePair, side: str) -> Measured:
+    idx, res = _hold_sim(pair, side, C.HOLD_MU_SENSITIVITY[0])
+    return Measured(idx, _held(res))
+
+
+@metric("hold_sim_mu3", "Articulated hold (mu = 3)", "%", 1e2, True, "held", 1,
+        "hold_sim at mu = 3 (friction sensitivity; physics table only): share of tested "
+        "held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=3),
+        leaderboard=False)
+def m_hold_sim_mu3(pair: SequencePair, side: str) -> Measured:
+    idx, res = _hold_sim(pair, side, C.HOLD_MU_SENSITIVITY[1])
+    return Measured(idx, _held(res))
+
+
+@metric("hold_sim_axes", "Articulated hold (6 gravity directions)", "%", 1e2, True, "held", 1,
+        "robustness of hold_sim (physics table only): share of (frame, direction) tests, "
+        "gravity along each of the world's six axis directions after one shared settle, where "
+        + _HOLD_DEF.format(g="that gravity", mu=1), leaderboard=False)
+def m_hold_sim_axes(pair: SequencePair, side: str) -> Measured:
+    from .hold import AXES
+
+    idx = physics_frames(pair, side)
+    vals = [np.mean(_held(_hold_runs(pair, int(t), C.SIM_FRICTION, AXES))) for t in idx]
+    return Measured(idx, np.asarray(vals, dtype=np.float64))
 
 
 # ------------------------------------------------------------------ motion
