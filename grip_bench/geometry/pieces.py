@@ -103,24 +103,74 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 class ExactDistance:
-    """Exact signed distance to a closed mesh (negative inside), libigl AABB tree with
-    pseudonormal signs; built once per surface."""
+    """Exact signed distance to a closed mesh (negative inside): libigl's AABB tree for the
+    closest point, the sign from the pseudonormal of the closest feature (face, edge or
+    vertex, angle-weighted; Baerentzen & Aanaes 2005), as ``igl.signed_distance`` does. The
+    tree and the pseudonormals are built once per surface, at the first query (rebuilding
+    them took ~20 ms of every ``igl.signed_distance`` call on a hand: most of a piece
+    refinement's time)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
-        import igl
-
         self.V = np.ascontiguousarray(vertices, dtype=np.float64)
         self.F = np.ascontiguousarray(faces, dtype=np.int64)
-        self._igl = igl
+        self._tree = None
+
+    def _build(self) -> None:
+        import igl
+
+        tri = self.V[self.F]  # (F, 3 corners, 3)
+        fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+        vn = np.zeros_like(self.V)
+        for k in range(3):  # angle-weighted vertex pseudonormals
+            a = tri[:, (k + 1) % 3] - tri[:, k]
+            b = tri[:, (k + 2) % 3] - tri[:, k]
+            cos = np.einsum("ij,ij->i", a, b) / np.maximum(
+                np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+            np.add.at(vn, self.F[:, k], fn * np.arccos(np.clip(cos, -1.0, 1.0))[:, None])
+        # edge pseudonormals: the sum of the two faces' normals, per (face, edge opposite k)
+        edges = np.stack([np.sort(self.F[:, [(k + 1) % 3, (k + 2) % 3]], axis=1)
+                          for k in range(3)], axis=1).reshape(-1, 2)
+        _, inv = np.unique(edges, axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        esum = np.zeros((inv.max() + 1, 3))
+        np.add.at(esum, inv, np.repeat(fn, 3, axis=0))
+        self._fn, self._vn, self._en = fn, vn, esum[inv].reshape(-1, 3, 3)
+        self._tree = igl.AABB()
+        self._tree.init(self.V, self.F)
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """points (N, 3) m -> (N,) m."""
         p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         if len(p) == 0:
             return np.zeros(0)
-        d = self._igl.signed_distance(
-            p, self.V, self.F, sign_type=self._igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0]
-        return np.asarray(d, dtype=np.float64)
+        if self._tree is None:
+            self._build()
+        sq, face, closest = self._tree.squared_distance(self.V, self.F, p)
+        tri = self.V[self.F[face]]  # (N, 3, 3)
+        bary = _barycentric(closest, tri)
+        eps = 1e-9  # of the barycentric coordinates: on a vertex / an edge
+        normal = self._fn[face].copy()
+        on_edge = bary < eps  # the coordinate of the corner opposite the edge is 0
+        for k in range(3):
+            e = on_edge[:, k]
+            normal[e] = self._en[face[e], k]
+            v = bary[:, k] > 1.0 - eps
+            normal[v] = self._vn[self.F[face[v], k]]
+        sign = np.where(np.einsum("ij,ij->i", p - closest, normal) < 0.0, -1.0, 1.0)
+        return sign * np.sqrt(np.maximum(sq, 0.0))
+
+
+def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates (N, 3) of points p (N, 3) in triangles tri (N, 3, 3)."""
+    v0, v1 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    v2 = p - tri[:, 0]
+    d00, d01, d11 = (np.einsum("ij,ij->i", a, b) for a, b in ((v0, v0), (v0, v1), (v1, v1)))
+    d20, d21 = np.einsum("ij,ij->i", v2, v0), np.einsum("ij,ij->i", v2, v1)
+    den = np.where(np.abs(d00 * d11 - d01 * d01) > 0, d00 * d11 - d01 * d01, 1.0)
+    b1 = (d11 * d20 - d01 * d21) / den
+    b2 = (d00 * d21 - d01 * d20) / den
+    return np.stack([1.0 - b1 - b2, b1, b2], axis=1)
 
 
 def hull_samples(points: np.ndarray) -> np.ndarray:
@@ -181,31 +231,39 @@ def _initial_patches(faces: np.ndarray, centroids: np.ndarray, labels: np.ndarra
 def surface_pieces(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray | None = None,
                    max_error: float = C.PIECE_MAX_ERROR, depth: float = C.PIECE_DEPTH,
                    patch_faces: int = C.PIECE_PATCH_FACES,
-                   sdf: ExactDistance | None = None) -> SurfacePieces:
+                   sdf: ExactDistance | None = None,
+                   normals: np.ndarray | None = None,
+                   patches: list[tuple[np.ndarray, float]] | None = None) -> SurfacePieces:
     """Convex pieces of a closed mesh with measured outward error <= ``max_error`` (m).
 
     vertices (V, 3) m, faces (F, 3), labels (V,) optional: no patch spans two labels (and no
     whole-hull shortcut is taken). ``depth`` (m): the inner layer's depth, halved where it
     pokes through a thin wall, never below ``C.PIECE_MIN_DEPTH``. A single face that still
     exceeds the bound there is kept and its error recorded (read ``error`` for the truth).
+    ``patches``: the starting patches (face indices into ``faces``, inner depth) instead of
+    ``labels``' compact ones (:func:`refine_pieces`); ``sdf`` and ``normals`` (V, 3) may be
+    passed in (a surface's own are computed otherwise).
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     sdf = sdf or ExactDistance(v, f)
-    if labels is None:
+    if labels is None and patches is None:
         whole = outward_errors([v], sdf)[0]
         if whole <= max_error:
             return SurfacePieces((np.arange(len(v)),), np.array([np.nan]), np.array([whole]))
-    normals = vertex_normals(v, f)
+    normals = vertex_normals(v, f) if normals is None else np.asarray(normals, np.float64)
     centroids = v[f].mean(1)
-    todo = [(p, depth) for p in _initial_patches(f, centroids, labels, patch_faces)]
+    todo = list(patches) if patches is not None else [
+        (p, depth) for p in _initial_patches(f, centroids, labels, patch_faces)]
     done: list[tuple[np.ndarray, float, float]] = []
     while todo:
         ids = [np.unique(f[p]) for p, _ in todo]
         full = outward_errors([piece_points(v, normals, i, d) for i, (_, d) in
                                zip(ids, todo, strict=True)], sdf)
-        thin = outward_errors([piece_points(v, normals, i, C.PIECE_MIN_DEPTH) for i in ids],
-                              sdf)
+        over = np.flatnonzero(full > max_error)  # only these need the thin prism's error
+        thin = np.zeros(len(ids))
+        thin[over] = outward_errors([piece_points(v, normals, ids[k], C.PIECE_MIN_DEPTH)
+                                     for k in over], sdf)
         nxt = []
         for (p, d), i, e_full, e_thin in zip(todo, ids, full, thin, strict=True):
             if e_full <= max_error:
@@ -220,3 +278,47 @@ def surface_pieces(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray |
     done.sort(key=lambda x: int(x[0].min()))
     return SurfacePieces(tuple(i for i, _, _ in done), np.array([d for _, d, _ in done]),
                          np.array([e for _, _, e in done]))
+
+
+# a piece a pose bent past the bound restarts from parts this small (faces): fewer measuring
+# rounds than halving it from PIECE_PATCH_FACES (kept here, not in constants: an algorithm
+# setting of this module, and an edit of constants renews every cache key)
+REFINE_FACES = 16
+
+
+def refine_pieces(pieces: SurfacePieces, errors: np.ndarray, vertices: np.ndarray,
+                  faces: np.ndarray, sdf: ExactDistance | None = None,
+                  normals: np.ndarray | None = None) -> SurfacePieces:
+    """``pieces`` whose ``errors`` (P,) m, measured on the surface ``vertices`` (V, 3) /
+    ``faces`` (F, 3) (e.g. a posed hand whose bending took a piece past the bound), exceed
+    ``PIECE_MAX_ERROR`` rebuilt from their own faces there: one :func:`surface_pieces` pass
+    that starts from the bad pieces and splits them against the whole surface's exact
+    distance, so the rebuilt pieces meet the bound (single faces excepted, their error
+    recorded). The others keep ``errors`` as their recorded error."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    errors = np.asarray(errors, dtype=np.float64)
+    bad = errors > C.PIECE_MAX_ERROR
+    keep = [i for i in range(len(pieces)) if not bad[i]]
+    centroids = v[f].mean(1)
+    patches = []
+    for i in np.flatnonzero(bad):
+        own = np.flatnonzero(np.isin(f, pieces.vertex_ids[i]).all(1))
+        d = pieces.depth[i]
+        if len(own) <= 1:
+            keep.append(int(i))  # one face (or none): nothing to split
+            continue
+        depth = float(d) if np.isfinite(d) else C.PIECE_DEPTH
+        todo = [own]
+        while todo:  # start from parts of PIECE_REFINE_FACES faces: fewer measuring rounds
+            p = todo.pop()
+            if len(p) > REFINE_FACES:
+                todo.extend(_split(p, centroids))
+            else:
+                patches.append((p, depth))
+    new = surface_pieces(v, f, sdf=sdf or ExactDistance(v, f), patches=patches,
+                         normals=vertex_normals(v, f) if normals is None else normals)
+    keep.sort()
+    return SurfacePieces(tuple(pieces.vertex_ids[i] for i in keep) + new.vertex_ids,
+                         np.concatenate([pieces.depth[keep], new.depth]),
+                         np.concatenate([errors[keep], new.error]))

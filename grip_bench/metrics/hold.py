@@ -30,8 +30,9 @@ Two tests share one scene per frame:
   Measurements: docs/physics_hold.md.
 
 Collision geometry is ``geometry.pieces``: the object's and the hand's pieces stick out at
-most ``PIECE_MAX_ERROR`` (measured), so a concave object stays concave and contacts start
-where the surfaces are. Pieces farther than ``HOLD_REACH`` from the other body are left out
+most ``PIECE_MAX_ERROR`` (measured; the hand's on each frame's pose, :func:`posed_pieces`),
+so a concave object stays concave and contacts start where the surfaces are. Pieces
+farther than ``HOLD_REACH`` from the other body are left out
 of a frame's scene: the object would have to move that far relative to the hand, beyond the
 success threshold, to reach them (a rotation about a far pivot could; so could a large
 object slowly turning around the hand, which then fails on rotation).
@@ -50,7 +51,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core import constants as C
-from ..geometry.pieces import SurfacePieces, surface_pieces, vertex_normals
+from ..geometry.pieces import (
+    ExactDistance,
+    SurfacePieces,
+    outward_errors,
+    refine_pieces,
+    surface_pieces,
+    vertex_normals,
+)
 from ..geometry.wrench import plan_forces
 
 if TYPE_CHECKING:  # trimesh costs 0.5 s to import; `grip-bench ls` should not pay it
@@ -133,29 +141,29 @@ def object_pieces(mesh: trimesh.Trimesh) -> SurfacePieces:
 def hand_pieces(template: np.ndarray, faces: np.ndarray, bone_ids: np.ndarray,
                 poses: list[np.ndarray] = ()) -> SurfacePieces:
     """A hand model's pieces, one bone each, error bounded on ``template`` (V, 3) and on each
-    extra posed vertex set in ``poses`` (the pieces are re-posed with the hand every frame).
-    Cached like :func:`object_pieces`."""
+    extra posed vertex set in ``poses``. Cached like :func:`object_pieces`. A scene re-poses
+    them with its frame's hand and rebuilds there whichever a bend took past the bound
+    (:func:`posed_pieces`)."""
     from ..geometry.cache import cached_arrays, mesh_key
-    from ..geometry.pieces import ExactDistance, outward_errors
 
     h = hashlib.sha256(np.ascontiguousarray(bone_ids, np.int64).tobytes())
     for p in poses:
         h.update(np.ascontiguousarray(p, np.float64).tobytes())
-    key = mesh_key("hand_pieces", template, faces, {**_piece_params(), "poses": h.hexdigest()})
+    extra = {"refine": 2} if len(poses) else {}  # refine_pieces: whole-surface normals
+    key = mesh_key("hand_pieces", template, faces,
+                   {**_piece_params(), "poses": h.hexdigest(), **extra})
     if key in _OBJECT_PIECES:
         return _OBJECT_PIECES[key]
 
     def build() -> dict[str, np.ndarray]:
         pieces = surface_pieces(template, faces, labels=bone_ids, depth=C.PIECE_HAND_DEPTH)
         for _ in range(4):  # split further where a pose bends a piece past the bound
-            bad = np.zeros(len(pieces), bool)
+            err = pieces.error.copy()
             for p in poses:
-                err = outward_errors(pieces.points(p, vertex_normals(p, faces)),
-                                     ExactDistance(p, faces))
-                bad |= err > C.PIECE_MAX_ERROR
-            if not bad.any():
+                err = np.maximum(err, _errors_on(pieces, p, faces))
+            if not (err > C.PIECE_MAX_ERROR).any():
                 break
-            pieces = _refine(pieces, bad, template, faces, bone_ids)
+            pieces = refine_pieces(pieces, err, template, faces)
         return pieces.to_arrays()
 
     a = cached_arrays("hand_pieces", key, build, names=("ids", "sizes", "depth", "error"))
@@ -163,27 +171,31 @@ def hand_pieces(template: np.ndarray, faces: np.ndarray, bone_ids: np.ndarray,
     return _OBJECT_PIECES[key]
 
 
-def _refine(pieces: SurfacePieces, bad: np.ndarray, v: np.ndarray, f: np.ndarray,
-            labels: np.ndarray) -> SurfacePieces:
-    """Rebuild the pieces flagged ``bad`` from smaller patches (a quarter of the faces)."""
-    keep = [i for i, b in enumerate(bad) if not b]
-    ids = [pieces.vertex_ids[i] for i in keep]
-    depth = list(pieces.depth[keep])
-    err = list(pieces.error[keep])
-    for i in np.flatnonzero(bad):
-        own = np.isin(f, pieces.vertex_ids[i]).all(1)
-        sub_f = f[own]
-        if len(sub_f) <= 1:
-            ids.append(pieces.vertex_ids[i])
-            depth.append(pieces.depth[i])
-            err.append(pieces.error[i])
-            continue
-        sub = surface_pieces(v, sub_f, labels=labels, depth=pieces.depth[i],
-                             patch_faces=max(1, len(sub_f) // 4))
-        ids.extend(sub.vertex_ids)
-        depth.extend(sub.depth)
-        err.extend(sub.error)
-    return SurfacePieces(tuple(ids), np.asarray(depth), np.asarray(err))
+def _errors_on(pieces: SurfacePieces, vertices: np.ndarray, faces: np.ndarray,
+               sdf: ExactDistance | None = None) -> np.ndarray:
+    """Outward errors (P,) m of ``pieces`` re-posed on ``vertices`` (V, 3)."""
+    sdf = sdf or ExactDistance(vertices, faces)
+    return outward_errors(pieces.points(vertices, vertex_normals(vertices, faces)), sdf)
+
+
+def posed_pieces(hand: PosedHand, obj_world: np.ndarray) -> SurfacePieces:
+    """The pieces of ``hand`` within ``HOLD_REACH`` of the object's world vertices
+    (N, 3), bounded on this frame's pose: the model's pieces re-posed, their outward error
+    measured against the posed surface, and those past ``PIECE_MAX_ERROR`` (a bend: 12 % of
+    a scene's pieces on the grasp fixture's frames, up to 2.1 mm) rebuilt there from smaller
+    patches (:func:`geometry.pieces.refine_pieces`). ``error`` holds each piece's error on
+    this pose; above the bound only where a single face is."""
+    pts = hand.pieces.points(hand.vertices, hand.normals)
+    keep = np.flatnonzero(_near(pts, obj_world, C.HOLD_REACH))
+    near = SurfacePieces(tuple(hand.pieces.vertex_ids[i] for i in keep),
+                         hand.pieces.depth[keep], np.zeros(len(keep)))
+    if not len(near):
+        return near
+    sdf = ExactDistance(hand.vertices, hand.faces)
+    err = outward_errors([pts[i] for i in keep], sdf)
+    if not (err > C.PIECE_MAX_ERROR).any():
+        return SurfacePieces(near.vertex_ids, near.depth, err)
+    return refine_pieces(near, err, hand.vertices, hand.faces, sdf, hand.normals)
 
 
 # ---------------------------------------------------------------- scene
@@ -244,11 +256,12 @@ def _near(points: list[np.ndarray], other: np.ndarray, reach: float) -> list[boo
 @dataclass
 class Scene:
     """A compiled frame: the model, which finger joints belong to which hand bone, and the
-    servo targets that tighten the grasp."""
+    servo targets that tighten the grasp, and the measured bound of its hand pieces."""
 
     model: mujoco.MjModel
     targets: np.ndarray
     n_hands: int
+    hand_error: float = 0.0  # m, the largest outward error of the hands' pieces on this pose
 
 
 def _spec(up: tuple[float, float, float], friction: float = C.SIM_FRICTION) -> mujoco.MjSpec:
@@ -327,26 +340,29 @@ def hand_scene(hands: list[PosedHand], obj: trimesh.Trimesh,
 
     spec = _spec(up)
     local, obj_world = _object_world_pieces(obj, obj_pose)
-    hand_world = []
+    hand_world, error = [], 0.0
     for k, hand in enumerate(hands):
-        hand_world.extend(_add_hand(spec, hand, f"h{k}", obj_world))
+        pts, err = _add_hand(spec, hand, f"h{k}", obj_world)
+        hand_world.extend(pts)
+        error = max(error, err)
     _add_object(spec, obj, _select_object(local, obj_pose, hand_world), obj_pose, density)
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     targets = np.concatenate([_tighten(model, data, hand, f"h{k}")
                               for k, hand in enumerate(hands)]) if hands else np.zeros(0)
-    return Scene(model, targets, len(hands))
+    return Scene(model, targets, len(hands), error)
 
 
 def _add_hand(spec: mujoco.MjSpec, hand: PosedHand, name: str,
-              obj_world: np.ndarray) -> list[np.ndarray]:
-    """Bodies, hinges, servos and pieces of one posed hand; returns its kept world pieces."""
+              obj_world: np.ndarray) -> tuple[list[np.ndarray], float]:
+    """Bodies, hinges, servos and pieces of one posed hand; returns its kept world pieces
+    and their largest outward error (m) on this pose."""
     import mujoco
 
-    pts = hand.pieces.points(hand.vertices, hand.normals)
-    keep = _near(pts, obj_world, C.HOLD_REACH)
-    bone_of = [int(np.bincount(hand.bone_ids[i]).argmax()) for i in hand.pieces.vertex_ids]
+    pieces = posed_pieces(hand, obj_world)
+    pts = pieces.points(hand.vertices, hand.normals)
+    bone_of = [int(np.bincount(hand.bone_ids[i]).argmax()) for i in pieces.vertex_ids]
     bodies: dict[int, mujoco.MjsBody] = {}
     for b in range(16):
         parent = spec.worldbody if hand.parents[b] < 0 else bodies[hand.parents[b]]
@@ -372,10 +388,10 @@ def _add_hand(spec: mujoco.MjSpec, hand: PosedHand, name: str,
                 act.set_to_position(kp=C.HOLD_FINGER_KP, kv=C.HOLD_FINGER_KV)
                 act.forcelimited = True
                 act.forcerange = [-C.HOLD_FINGER_TORQUE, C.HOLD_FINGER_TORQUE]
-        mine = [p for p, k, bb in zip(pts, keep, bone_of, strict=True) if k and bb == b]
+        mine = [p for p, bb in zip(pts, bone_of, strict=True) if bb == b]
         _add_pieces(spec, body, mine, f"{name}_p{b}_", hand=True, origin=hand.joints[b])
         bodies[b] = body
-    return [p for p, k in zip(pts, keep, strict=True) if k]
+    return pts, float(pieces.error.max(initial=0.0))
 
 
 def _tighten(model: mujoco.MjModel, data: mujoco.MjData, hand: PosedHand,

@@ -72,6 +72,75 @@ def test_exact_distance_matches_an_analytic_sphere():
     assert np.allclose(d(p), [0.02, -0.03, -0.01], atol=2e-4)  # faceting of a 30 mm sphere
 
 
+def test_exact_distance_matches_libigl_and_trimesh_near_a_hand():
+    """The cached-tree distance against ``igl.signed_distance`` (pseudonormal signs, the
+    reference it replaces) on points around the procedural hand, on its vertices, face
+    centres and edge midpoints (the features whose sign needs a pseudonormal), and against
+    trimesh's independent signed distance on a sample."""
+    import igl
+
+    from grip_bench.bodies.hand import ProceduralHand
+
+    hand = ProceduralHand()
+    v = hand.template_vertices.detach().double().numpy()
+    f = np.asarray(hand.faces, dtype=np.int64)
+    rng = np.random.default_rng(0)
+    near = v[rng.integers(0, len(v), 4000)] + rng.normal(0, 0.004, (4000, 3))
+    p = np.concatenate([near, v, v[f].mean(1), 0.5 * (v[f[:, 0]] + v[f[:, 1]])])
+    d = ExactDistance(v, f)
+    ref = igl.signed_distance(p, v, f, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0]
+    np.testing.assert_allclose(d(p), ref, atol=1e-12)
+    np.testing.assert_allclose(d(p[:50]), ref[:50], atol=1e-12)  # the tree is reused
+    # trimesh (+ inside) picks candidate faces by bounding box: the same signs, distances
+    # within 20 um (its closest point inside the thin hand is not always the nearest face)
+    tm = -trimesh.proximity.signed_distance(trimesh.Trimesh(v, f, process=False), near[:300])
+    mine = d(near[:300])
+    assert (np.sign(mine) == np.sign(tm)).all()
+    np.testing.assert_allclose(mine, tm, atol=2e-5)
+
+
+def test_refined_pieces_meet_the_bound_on_a_bent_surface():
+    """Pieces built on a straight bar (large patches: 256 faces) and re-posed on the bar
+    bent 90 degrees at x = 0 round a 20 mm radius (a finger flexing; the bar is 12 mm
+    thick, so nothing self-intersects) stick out past the bound (3.3 mm); ``refine_pieces``
+    rebuilds those on the bent surface, within the bound (measured independently), every
+    face still covered."""
+    from grip_bench.geometry.pieces import outward_errors, refine_pieces
+
+    bar = trimesh.creation.box(extents=[0.08, 0.012, 0.016])
+    for _ in range(3):
+        bar = bar.subdivide()
+    v0 = np.asarray(bar.vertices)
+    radius, arc = 0.02, 0.02 * np.pi / 2
+    x = v0[:, 0]
+    theta = np.clip(x, 0, arc) / radius  # 0..90 degrees over the arc, then straight on
+    r, rest = radius - v0[:, 1], np.clip(x - arc, 0, None)
+    fold = v0.copy()
+    bent = x > 0
+    fold[bent, 0] = (r * np.sin(theta) + rest * np.cos(theta))[bent]
+    fold[bent, 1] = (radius - r * np.cos(theta) + rest * np.sin(theta))[bent]
+    f = np.asarray(bar.faces)
+    pieces = surface_pieces(v0, f, labels=np.zeros(len(v0), int), depth=C.PIECE_HAND_DEPTH,
+                            patch_faces=256)
+    sdf = ExactDistance(fold, f)
+    normals = vertex_normals(fold, f)
+    err = outward_errors(pieces.points(fold, normals), sdf)
+    assert err.max() > C.PIECE_MAX_ERROR  # the fold breaks some of them
+    better = refine_pieces(pieces, err, fold, f, sdf, normals)
+    after = outward_errors(better.points(fold, normals), sdf)
+    np.testing.assert_allclose(after, better.error, atol=1e-12)
+    assert after.max() <= C.PIECE_MAX_ERROR
+    folded = trimesh.Trimesh(fold, f, process=False)
+    rng = np.random.default_rng(0)
+    pts = better.points(fold, normals)
+    worst = max(naive_outward_error(p, folded, rng) for p in pts[:: max(1, len(pts) // 30)])
+    assert worst <= C.PIECE_MAX_ERROR + 1e-4
+    covered = np.zeros(len(f), bool)
+    for ids in better.vertex_ids:
+        covered |= np.isin(f, ids).all(1)
+    assert covered.all()
+
+
 def test_round_trip_through_arrays():
     bowl = bowl_mesh()
     pieces = surface_pieces(bowl.vertices, bowl.faces)

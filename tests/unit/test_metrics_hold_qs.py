@@ -313,3 +313,36 @@ def test_hold_sim_friction_and_direction_variants_match_a_naive_loop(fixture):
             assert got[(side, m)] == pytest.approx(100 * np.mean(want[m])), m
         if pred is not cylinder:
             assert all(got[(side, m)] == 0.0 for m in ids)
+
+
+def test_the_scene_hand_pieces_meet_the_bound_on_each_posed_frame(fixture):
+    """The hand model's pieces re-posed on a grasp frame stick out past ``PIECE_MAX_ERROR``
+    (its bends); the pieces a scene gets (``hold.posed_pieces``) are within it there,
+    measured by the scene and by random samples of their hulls (an independent check)."""
+    import trimesh
+
+    from grip_bench.geometry.pieces import ExactDistance, outward_errors
+    from tests.unit.test_geometry_pieces import naive_outward_error
+
+    lib, seqs = fixture
+    rng = np.random.default_rng(0)
+    worst_model, worst_scene = 0.0, 0.0
+    for seq in seqs:
+        pair = SequencePair(seq, seq, lib, EvalOptions(), FailureCounter())
+        t = int(physics_frames(pair, "right")[0])
+        R, tr = object_pose(pair, t)
+        obj = np.asarray(pair.mesh.vertices) @ R.T + tr
+        for hand in posed_hands(pair, t):
+            sdf = ExactDistance(hand.vertices, hand.faces)
+            model = outward_errors(hand.pieces.points(hand.vertices, hand.normals), sdf)
+            pieces = H.posed_pieces(hand, obj)
+            pts = pieces.points(hand.vertices, hand.normals)
+            np.testing.assert_allclose(outward_errors(pts, sdf), pieces.error, atol=1e-12)
+            mesh = trimesh.Trimesh(hand.vertices, hand.faces, process=False)
+            naive = [naive_outward_error(p, mesh, rng) for p in pts[::max(1, len(pts) // 25)]]
+            worst_model = max(worst_model, model.max())
+            worst_scene = max(worst_scene, pieces.error.max(), max(naive) - 1e-4)
+        scene = H.hand_scene(posed_hands(pair, t), pair.mesh, (R, tr), pair.options.up)
+        assert scene.hand_error <= C.PIECE_MAX_ERROR
+    assert worst_model > C.PIECE_MAX_ERROR  # not vacuous: the bends break the model's pieces
+    assert worst_scene <= C.PIECE_MAX_ERROR
