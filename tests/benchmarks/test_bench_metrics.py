@@ -199,7 +199,7 @@ def test_bench_surface_pieces_bowl(benchmark):
 
 
 def test_bench_static_hold_ball_in_bowl(benchmark):
-    """One experimental hold test (metrics.hold): compile + 0.2 s settle + 1 s hold."""
+    """One hold test (metrics.hold, static hands): compile + 0.2 s settle + 1 s hold."""
     from grip_bench.metrics import hold
     from tests.unit.test_geometry_pieces import bowl_mesh
 

@@ -1,4 +1,4 @@
-"""The experimental hold test (grip_bench.metrics.hold) on analytic scenes."""
+"""The hold test (grip_bench.metrics.hold, the physics table's hold_sim) on analytic scenes."""
 
 from __future__ import annotations
 
