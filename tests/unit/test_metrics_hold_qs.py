@@ -339,7 +339,7 @@ def test_the_scene_hand_pieces_meet_the_bound_on_each_posed_frame(fixture):
             pts = pieces.points(hand.vertices, hand.normals)
             np.testing.assert_allclose(outward_errors(pts, sdf), pieces.error, atol=1e-12)
             mesh = trimesh.Trimesh(hand.vertices, hand.faces, process=False)
-            naive = [naive_outward_error(p, mesh, rng) for p in pts[::max(1, len(pts) // 25)]]
+            naive = [naive_outward_error(p, mesh, rng) for p in pts[::max(1, len(pts) // 10)]]
             worst_model = max(worst_model, model.max())
             worst_scene = max(worst_scene, pieces.error.max(), max(naive) - 1e-4)
         scene = H.hand_scene(posed_hands(pair, t), pair.mesh, (R, tr), pair.options.up)
