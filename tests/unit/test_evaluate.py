@@ -34,8 +34,11 @@ def _by(rows):
 def test_ground_truth_against_itself_is_exactly_zero(data):
     lib, seqs = data
     for gt in seqs.values():
+        # every metric but the articulated hold test's (not asserted here, and its scenes
+        # dominate the cost; tests/unit/test_metrics_hold_qs.py checks it)
+        ids = tuple(m for m in E.METRICS.names() if not m.startswith("hold_sim"))
         rows, _ = E.evaluate_sequence(
-            gt, gt.copy(), lib, options=E.EvalOptions(max_physics_frames=2)
+            gt, gt.copy(), lib, options=E.EvalOptions(metrics=ids, max_physics_frames=2)
         )
         got = _by(rows)
         for side in ("right", "left"):
