@@ -310,7 +310,7 @@ def refine_pieces(pieces: SurfacePieces, errors: np.ndarray, vertices: np.ndarra
             continue
         depth = float(d) if np.isfinite(d) else C.PIECE_DEPTH
         todo = [own]
-        while todo:  # start from parts of PIECE_REFINE_FACES faces: fewer measuring rounds
+        while todo:  # start from parts of REFINE_FACES faces: fewer measuring rounds
             p = todo.pop()
             if len(p) > REFINE_FACES:
                 todo.extend(_split(p, centroids))
