@@ -568,10 +568,8 @@ def quasi_static_frame(pair: SequencePair, t: int, mu: float = C.SIM_FRICTION,
     from ..geometry.wrench import can_hold, cone_wrenches
     from .hold import gravity_along
 
-    up = np.asarray(pair.options.up, np.float64)
-    g = gravity_along(axis, up)
-    if axis is not None and np.array_equal(g, gravity_along(None, up)):
-        axis = None  # the world's own gravity: the same test
+    axis = _world_axis(pair, axis)
+    g = gravity_along(axis, np.asarray(pair.options.up, np.float64))
     key = (t, "quasi-static", mu, axis)
     if key in pair._sims:
         return pair._sims[key]
@@ -587,6 +585,17 @@ def quasi_static_frame(pair: SequencePair, t: int, mu: float = C.SIM_FRICTION,
         held = float(can_hold(depth, closest, normal, com, load, mu, pair._sims.get(wkey)))
     pair._sims[key] = held
     return held
+
+
+def _world_axis(pair: SequencePair, axis: str | None) -> str | None:
+    """``axis`` (one of ``hold.AXES``, or None for the world's gravity), None where it is the
+    world's own gravity: the same test, cached once (quasi-static and articulated)."""
+    from .hold import gravity_along
+
+    up = np.asarray(pair.options.up, np.float64)
+    if axis is not None and np.array_equal(gravity_along(axis, up), gravity_along(None, up)):
+        return None
+    return axis
 
 
 def _qs(pair: SequencePair, side: str, mu: float, axes: bool = False) -> Measured:
@@ -751,12 +760,9 @@ def hold_frame(pair: SequencePair, t: int, mu: float = C.SIM_FRICTION,
 def _hold_runs(pair: SequencePair, t: int, mu: float,
                axes: tuple[str | None, ...]) -> list[HoldResult | None]:
     """:func:`hold_frame` of several directions; the uncached ones run after one settle."""
-    from .hold import gravity_along, hold
+    from .hold import hold
 
-    up = np.asarray(pair.options.up, np.float64)
-    world = gravity_along(None, up)
-    axes = tuple(None if a is not None and np.array_equal(gravity_along(a, up), world) else a
-                 for a in axes)
+    axes = tuple(_world_axis(pair, a) for a in axes)
     keys = {a: (t, "articulated hold", mu, a) for a in axes}
     todo = tuple(dict.fromkeys(a for a in axes if keys[a] not in pair._sims))
     if todo:
