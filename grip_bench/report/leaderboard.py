@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import io
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from ..metrics.registry import MetricSpec
 from .tables import (
     HAND_LABELS,
+    TIED_NOTE,
     Cell,
     Column,
     Row,
@@ -38,6 +39,7 @@ from .tables import (
     best_values,
     default_metric_registry,
     mark_best,
+    mark_tied,
 )
 
 LEADERBOARD_COLUMNS = ("method", "metric", "hand", "value", "ci_low", "ci_high", "unit",
@@ -113,7 +115,8 @@ def leaderboard(results_df: pd.DataFrame,
         lb["_rank"] = _rank_key(lb)
         lb = lb.sort_values(["metric", "_hand", "hand", "_rank", "method"], kind="mergesort")
         lb = lb.drop(columns=["_hand", "_rank"]).reset_index(drop=True)
-    lb.attrs["averaging"] = averaging
+    lb.attrs.update(averaging=averaging, bootstrap_seed=seed, bootstrap_n=n_boot,
+                    perturbation=perturbation)
     return lb
 
 
@@ -148,8 +151,12 @@ def leaderboard_table(lb: pd.DataFrame,
                       metrics_registry: Registry[MetricSpec] | None = None,
                       title: str = "Leaderboard",
                       reference_methods: Sequence[str] | None = None,
-                      control_methods: Sequence[str] | None = None) -> TableData:
+                      control_methods: Sequence[str] | None = None,
+                      results: pd.DataFrame | None = None) -> TableData:
     """The leaderboard as a wide table (methods x metric/hand) for the shared renderers.
+
+    ``results``: the results frame ``lb`` was computed from; with it, methods the best of a
+    column does not beat on the same sequences are bold too (``tables.mark_tied``).
 
     ``reference_methods``: rows never marked best (None: the registered methods whose
     ``MethodSpec.reference`` is set); ``control_methods``: trivial controls, ranked but
@@ -194,10 +201,26 @@ def leaderboard_table(lb: pd.DataFrame,
              "GRIP's ablation variants are compared in Tables 2 and 4 (right) and the physics "
              "table, on those tables' metrics.",
              AVERAGING_NOTES[lb.attrs.get("averaging", "sequence")])
+    rows = mark_best(rows)
+    if results is not None:
+        rows = mark_tied(rows, _results_lookup(results, lb.attrs),
+                         n_boot=lb.attrs.get("bootstrap_n", BOOTSTRAP_N),
+                         seed=lb.attrs.get("bootstrap_seed", BOOTSTRAP_SEED),
+                         averaging=lb.attrs.get("averaging", "sequence"))
+        notes = (*notes, TIED_NOTE)
     return TableData(id="leaderboard", title=title, version=2,
                      description="every method, metric and hand on the clean test runs",
-                     row_header="Method", columns=tuple(columns),
-                     rows=tuple(mark_best(rows)), notes=notes)
+                     row_header="Method", columns=tuple(columns), rows=tuple(rows), notes=notes)
+
+
+def _results_lookup(results: pd.DataFrame, attrs: Mapping) -> Callable[[Cell], pd.DataFrame | None]:
+    """A leaderboard cell's results rows: its (method, metric, hand) on the runs the
+    leaderboard was computed from (``attrs["perturbation"]``, the clean ones by default)."""
+    pert = attrs.get("perturbation", "none")
+    df = results if pert is None else results[results["perturbation"] == pert]
+    groups = dict(tuple(df.groupby(["method", "metric", "hand"], sort=False)))
+    return lambda c: groups.get((c.filters.get("method"), c.filters.get("metric"),
+                                 c.filters.get("hand")))
 
 
 def _column_names(columns: Sequence[Column], keys: set) -> str:
@@ -215,13 +238,16 @@ def _lb_cell(r: Any, col: Column) -> Cell:
 
 
 def leaderboard_tables(lb: pd.DataFrame, metrics_registry: Registry[MetricSpec] | None = None,
-                       title: str = "Leaderboard") -> list[TableData]:
-    """One leaderboard table per hand (right, left, both): each fits a page width."""
+                       title: str = "Leaderboard",
+                       results: pd.DataFrame | None = None) -> list[TableData]:
+    """One leaderboard table per hand (right, left, both): each fits a page width.
+    ``results``: as in :func:`leaderboard_table`."""
     hands = sorted(set(lb["hand"]), key=lambda h: (_HAND_ORDER.get(h, 9), h))
     if len(hands) <= 1:
-        return [leaderboard_table(lb, metrics_registry, title)]
+        return [leaderboard_table(lb, metrics_registry, title, results=results)]
     return [leaderboard_table(lb[lb["hand"] == h], metrics_registry,
-                              f"{title}: {_HAND_TITLES.get(h, h)}") for h in hands]
+                              f"{title}: {_HAND_TITLES.get(h, h)}", results=results)
+            for h in hands]
 
 
 _HAND_TITLES = {"right": "right hand", "left": "left hand", "both": "both hands"}
@@ -229,11 +255,12 @@ _HAND_TITLES = {"right": "right hand", "left": "left hand", "both": "both hands"
 
 def write_leaderboard_md(lb: pd.DataFrame, path: str | os.PathLike,
                          metrics_registry: Registry[MetricSpec] | None = None,
-                         title: str = "Leaderboard") -> Path:
+                         title: str = "Leaderboard",
+                         results: pd.DataFrame | None = None) -> Path:
     from .render import to_markdown
 
     parts = [to_markdown(t, heading_level=2)
-             for t in leaderboard_tables(lb, metrics_registry, title)]
+             for t in leaderboard_tables(lb, metrics_registry, title, results)]
     return atomic_write_text(path, "\n".join(parts))
 
 
@@ -243,7 +270,7 @@ def write_leaderboard_html(lb: pd.DataFrame, path: str | os.PathLike,
                            title: str = "grip-bench leaderboard",
                            extra_tables: Sequence[TableData] = (),
                            links: Mapping[str, Sequence[tuple[str, str | os.PathLike]]]
-                           | None = None) -> Path:
+                           | None = None, results: pd.DataFrame | None = None) -> Path:
     """Self-contained sortable page: the leaderboard, optional paper tables, PNG figures.
 
     ``links``: ``{method: [(text, viewer page path)]}``, linked (relative to the page) after
@@ -252,6 +279,6 @@ def write_leaderboard_html(lb: pd.DataFrame, path: str | os.PathLike,
 
     rel = relative_links(links, Path(path).parent)
     fragments = [table_html(t, rel)
-                 for t in leaderboard_tables(lb, metrics_registry, "Leaderboard")]
+                 for t in leaderboard_tables(lb, metrics_registry, "Leaderboard", results)]
     fragments += [table_html(t, rel) for t in extra_tables]
     return atomic_write_text(path, html_page(title, fragments, figures))

@@ -2,7 +2,8 @@
 LaTeX (booktabs) and HTML (self-contained, click-to-sort).
 
 Conventions shared by all formats: ↓ / ↑ after a header say lower / higher is better; the
-best value per column (per metric, reference rows excluded, ties included) is bold; a cell
+best value per column (per metric, reference rows excluded, ties included) is bold, and so
+is every value the best does not beat on the same sequences (``Cell.tied``); a cell
 shows ``mean [lo, hi]`` (95% bootstrap interval, omitted when fewer than 2 sequences) or
 ``before → after [lo, hi]``; "–" marks a cell without results; NaN counts are footnoted.
 A seeded table (results of several training seeds, ``TableData.n_seeds`` > 1) adds the
@@ -169,7 +170,7 @@ def _md_cell(cell: Cell, mark: int | None) -> str:
         text = MISSING
     else:
         after = MISSING if not _shown(cell.ci) else fmt_num(cell.ci.mean, cell.decimals)
-        if cell.best:
+        if cell.best or cell.tied:
             after = f"**{after}**"
         if cell.paired:
             before = fmt_num(cell.before.mean, cell.decimals) if _shown(cell.before) else MISSING
@@ -210,7 +211,7 @@ CSV_COLUMNS = ("table", "version", "row_group", "row", "reference", "column_grou
                "method", "dataset", "split", "perturbation", "metric", "hand", "unit",
                "higher_is_better", "value", "ci_low", "ci_high", "n", "n_nan",
                "before_method", "before_value", "before_ci_low", "before_ci_high",
-               "before_n", "before_n_nan", "best")
+               "before_n", "before_n_nan", "best", "best_tied")
 
 
 def _ci_fields(ci: CI | None) -> list[str]:
@@ -263,7 +264,8 @@ def to_csv(data: TableData) -> str:
                         *_ci_fields(cell.ci),
                         (cell.before_method or "") if cell.paired else "",
                         *(_ci_fields(before) if cell.paired else [""] * 5),
-                        _bool(cell.best), *(_seed_fields(cell) if seeded else [])])
+                        _bool(cell.best), _bool(cell.tied),
+                        *(_seed_fields(cell) if seeded else [])])
     return buf.getvalue()
 
 
@@ -301,7 +303,7 @@ def _tex_cell(cell: Cell, mark: int | None) -> str:
         text = "--"
     else:
         after = fmt_num(cell.ci.mean, cell.decimals) if _shown(cell.ci) else "--"
-        if cell.best:
+        if cell.best or cell.tied:
             after = rf"\textbf{{{after}}}"
         if cell.paired:
             before = fmt_num(cell.before.mean, cell.decimals) if _shown(cell.before) else "--"
@@ -410,7 +412,7 @@ def _esc(text: str) -> str:
 
 
 def _html_cell(cell: Cell, mark: int | None) -> str:
-    classes = ["best"] if cell.best else []
+    classes = ["best"] if cell.best or cell.tied else []
     if not _shown(cell.ci) and not (cell.paired and _shown(cell.before)):
         body, value = MISSING, ""
     else:

@@ -234,10 +234,11 @@ def write_leaderboards(out: Path, results: pd.DataFrame, options: dict,
                          hands=hands, averaging=options.get("averaging", "sequence"))
         stem = "leaderboard" if len(datasets) == 1 else f"leaderboard.{ds}"
         written += [write_leaderboard_csv(lb, out / f"{stem}.csv"),
-                    write_leaderboard_md(lb, out / f"{stem}.md")]
+                    write_leaderboard_md(lb, out / f"{stem}.md", results=df)]
         if not lb.empty:
             written.append(write_leaderboard_html(lb, out / f"{stem}.html", figures=figures,
-                                                  links=links, extra_tables=extra_tables))
+                                                  links=links, extra_tables=extra_tables,
+                                                  results=df))
     return written
 
 

@@ -8,6 +8,7 @@ import shutil
 import subprocess
 from html.parser import HTMLParser
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -61,6 +62,7 @@ EXPECTED_FUTURE_MD = """\
 - 0 future frames runs in real time; n > 0 adds a latency of n frames (n / 30 s).
 - 10 is the full GRIP model (its default cue), so that row is the grip run itself.
 - Averaging: per sequence (each sequence's frames first, then the mean over sequences, every sequence weighing the same).
+- Bold: the best value of each column among the methods, and every method the best does not beat: their per-sequence difference has a paired 95% bootstrap interval (sequences resampled within each object, seeded) that includes 0.
 """  # noqa: E501
 
 
@@ -73,6 +75,79 @@ def test_ties_at_display_precision_are_both_bold():
     df.loc[(df["method"] == "grip-future5") & (df["hand"] == "right"), "value"] = 7.8801
     md = render_table("table4_future", df, "md", n_boot=20)
     assert "| 5 | **7.88** [7.88, 7.88]" in md and "| 10 | **7.88** [7.88, 7.88]" in md
+
+
+def _sequences_frame(values: dict, objects: list[str]) -> pd.DataFrame:
+    """{method: per-sequence right-hand MPVPE values} -> results (sequence k of objects[k])."""
+    rows = [ResultRow(m, "synthgrab", "test", "none", f"s{k}", obj, "right", "mpvpe", float(v),
+                      UNITS["mpvpe"], 30)
+            for m, vals in values.items() for k, (obj, v) in enumerate(zip(objects, vals,
+                                                                             strict=True))]
+    return R.validate(R.to_frame(rows))
+
+
+def _naive_tied(a: np.ndarray, b: np.ndarray, objects: list[str], n_boot: int = 2000) -> bool:
+    """Reference: the object-stratified paired bootstrap of mean(a - b), one loop per
+    resample; tied when its 95% interval includes 0."""
+    rng = np.random.default_rng(123)
+    groups = [np.flatnonzero(np.asarray(objects) == o) for o in sorted(set(objects))]
+    means = []
+    for _ in range(n_boot):
+        idx = np.concatenate([g[rng.integers(0, len(g), len(g))] for g in groups])
+        means.append(float(np.mean(a[idx] - b[idx])))
+    lo, hi = np.quantile(means, [0.025, 0.975])
+    return bool(lo <= 0.0 <= hi)
+
+
+def _shifted_and_noisy():
+    rng = np.random.default_rng(0)
+    objects = [f"o{k % 6}" for k in range(30)]
+    base = 5.0 + 3.0 * rng.random(30)  # the sequences' difficulty: wide unpaired intervals
+    return objects, {
+        "grip": base,
+        "grip-future0": base + 0.3,  # worse by 0.3 mm on every sequence: beaten
+        "grip-future3": base + rng.choice([-0.2, 0.2], 30) + 0.01,  # noise around it: a tie
+        "grip-future5": base + 0.4 + rng.choice([-0.05, 0.05], 30),  # worse, a little noise
+    }
+
+
+def test_a_method_the_best_does_not_beat_is_bold_too():
+    objects, values = _shifted_and_noisy()
+    df = _sequences_frame(values, objects)
+    data = compute_table(TABLES.get("table4_future"), df, n_boot=2000)
+    right = {r.label: r.cells[0] for r in data.rows}
+    assert right["10"].best and not right["10"].tied
+    # the unpaired intervals of the beaten rows reach the best mean: overlap alone would tie
+    assert right["0"].ci.lo < right["10"].ci.mean < right["0"].ci.hi
+    assert not right["0"].tied and not right["5"].tied and right["3"].tied
+    label = {"0": "grip-future0", "3": "grip-future3", "5": "grip-future5"}
+    for row, method in label.items():  # the same decision as a naive paired bootstrap
+        assert right[row].tied == _naive_tied(values[method], values["grip"], objects), row
+    md = render(data, "md")
+    assert "| 3 | **" in md and "| 0 | **" not in md and "| 5 | **" not in md
+    assert "paired 95% bootstrap interval" in md
+    csv_rows = [line.split(",") for line in render(data, "csv").splitlines()]
+    head = csv_rows[0]
+    tied = {r[head.index("row")]: r[head.index("best_tied")] for r in csv_rows[1:]
+            if r[head.index("hand")] == "right"}
+    assert tied == {"0": "false", "3": "true", "5": "false", "10": "false"}
+
+
+def test_leaderboard_marks_ties_from_its_results():
+    from grip_bench.report.leaderboard import leaderboard, leaderboard_table
+
+    objects, values = _shifted_and_noisy()
+    renamed = {"grip": "grip", "toch": "grip-future0", "manipnet": "grip-future3",
+               "gt": "grip-future5"}  # gt is a reference row: never best, never tied
+    df = _sequences_frame({m: values[v] for m, v in renamed.items()}, objects)
+    lb = leaderboard(df, n_boot=2000)
+    plain = leaderboard_table(lb)
+    marked = leaderboard_table(lb, results=df)
+    before, after = ({r.label: r.cells[0] for r in t.rows} for t in (plain, marked))
+    assert not any(c.tied for c in before.values())
+    assert after["grip"].best and after["manipnet"].tied
+    assert not after["toch"].tied and not after["gt"].tied
+    assert any("paired 95% bootstrap" in n for n in marked.notes)
 
 
 def test_missing_cells_and_nan_footnotes():

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import re
 import tomllib
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -401,6 +401,8 @@ class Cell:
     paired: bool = False
     before_method: str | None = None
     best: bool = False
+    # not the best, but the best of its column does not beat it: bold too (``mark_tied``)
+    tied: bool = False
     metric: str | None = None
     unit: str = ""
     higher_is_better: bool | None = None
@@ -804,6 +806,46 @@ def mark_best(rows: list[Row]) -> list[Row]:
     return out
 
 
+TIED_NOTE = ("Bold: the best value of each column among the methods, and every method the "
+             "best does not beat: their per-sequence difference has a paired 95% bootstrap "
+             "interval (sequences resampled within each object, seeded) that includes 0.")
+
+
+def mark_tied(rows: list[Row], cell_results: Callable[[Cell], pd.DataFrame | None],
+              n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
+              averaging: str = "sequence") -> list[Row]:
+    """``Cell.tied`` on the ranked cells that the best cell of their (column, metric) does
+    not beat on the same sequences (:func:`paired_difference_ci` of the two includes 0).
+
+    Unpaired intervals overlap for most methods (the sequences' difficulty dominates them);
+    the paired difference cancels that, so a tie here means the data cannot order the two.
+    ``cell_results(cell)``: the results rows a cell was computed from (None or empty: not
+    compared). Reference and control rows are never tied, as they are never best.
+    """
+    best: dict[tuple[int, str | None], Cell] = {}
+    for row in rows:
+        for j, c in enumerate(row.cells):
+            if c.best:
+                best.setdefault((j, c.metric), c)
+    refs: dict[tuple[int, str | None], pd.DataFrame | None] = {}
+    out = []
+    for row in rows:
+        cells = list(row.cells)
+        for j, c in enumerate(cells):
+            key = (j, c.metric)
+            if row.reference or row.control or c.best or key not in best or _shown(c) is None:
+                continue
+            if key not in refs:
+                refs[key] = cell_results(best[key])
+            mine, ref = cell_results(c), refs[key]
+            if mine is None or ref is None or not len(mine) or not len(ref):
+                continue
+            d = paired_difference_ci(mine, ref, n_boot=n_boot, seed=seed, averaging=averaging)
+            cells[j] = replace(c, tied=bool(d.n > 0 and d.lo <= 0.0 <= d.hi))
+        out.append(replace(row, cells=tuple(cells)))
+    return out
+
+
 def _row_group_info(
     spec: TableSpec, row: RowSpec, registry: Registry[MetricSpec] | None
 ) -> tuple[str | None, bool | None]:
@@ -852,9 +894,13 @@ def compute_table(
             notes = (*notes, verdict_note(verdict_header.removeprefix("Verdict vs ")))
     gates = check_gates(spec, rows, registry)
     notes = (*notes, *(f"Sanity gate {gate_line(*g)}" for g in gates))
+    rows = mark_best(rows)
+    if spec.source != "runtime":
+        rows = mark_tied(rows, lambda c: _cell_results(index, c), n_boot, seed, averaging)
+        notes = (*notes, TIED_NOTE)
     return TableData(id=spec.id, title=spec.title, version=spec.version,
                      description=spec.description, row_header=spec.row_header,
-                     columns=columns, rows=tuple(mark_best(rows)), notes=tuple(notes),
+                     columns=columns, rows=tuple(rows), notes=tuple(notes),
                      n_seeds=n_seeds, verdict_header=verdict_header, gates=gates)
 
 
@@ -936,6 +982,14 @@ def _seeded_rows(
                if spec.cell_filters(r, spec.columns[0]).get("method") == spec.compare_to)
     rows = _judged_rows(rows, cell_rows, ref, n_boot, seed, averaging, columns)
     return rows, f"Verdict vs {spec.rows[ref].label}"
+
+
+def _cell_results(index: _Index, cell: Cell) -> pd.DataFrame | None:
+    """The results rows behind a computed cell (every seed's, for a seeded table)."""
+    if not cell.filters:
+        return None
+    parts = index.seeded(cell.filters)
+    return pd.concat(parts) if len(parts) > 1 else (parts[0] if parts else None)
 
 
 def _results_rows(
