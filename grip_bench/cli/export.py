@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.errors import InputError
-from ..data.posing import hand_poser, load_object_mesh_of
 
 if TYPE_CHECKING:
     from ..data.sequence import Sequence
@@ -67,6 +66,10 @@ def export_sequence(
     Everything that can fail on input (mesh, hand models) is checked before ``out_dir``
     is created.
     """
+    # here, not at the top: `build_parser` imports every command module, and posing
+    # brings torch and trimesh (3 s of every grip-bench start-up, `--help` included)
+    from ..data.posing import hand_poser, load_object_mesh_of
+
     obj_v, obj_f = load_object_mesh_of(seq)
     poser = hand_poser(seq, model_path)
     out_dir.mkdir(parents=True, exist_ok=True)

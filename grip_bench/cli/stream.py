@@ -38,8 +38,12 @@ loopback addresses unless --allow-remote. --precision auto runs int8 where the C
 int8 dot products (the fastest at batch 1), else fp32."""
 
 
+# grip.frozen.STREAM_PRECISION_CHOICES, spelled out: importing it brings torch into every
+# grip-bench start-up (build_parser registers every command); a test keeps the two equal
+STREAM_PRECISION_CHOICES = ("auto", "fp32", "bf16", "int8")
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..grip.frozen import STREAM_PRECISION_CHOICES
     from .meshopts import add_mesh_flags
 
     p = sub.add_parser("stream", help="run GRIP frame by frame over JSON lines",

@@ -25,6 +25,23 @@ def test_version_and_help():
     assert r.returncode == 0 and "ls" in r.stdout and "--debug" in r.stdout
 
 
+def test_start_up_imports_neither_torch_nor_trimesh():
+    """Every command's parser is built at start-up: a command module that imports torch or
+    trimesh at its top costs every `grip-bench` call seconds (`--help` took 4.7 s, s36)."""
+    code = ("import sys; from grip_bench.cli.main import build_parser; build_parser(); "
+            "print(sorted(m for m in ('torch', 'trimesh', 'mujoco') if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "[]", r.stdout + r.stderr
+
+
+def test_stream_precision_choices_are_the_pipelines():
+    from grip_bench.cli import stream
+    from grip_bench.grip.frozen import STREAM_PRECISION_CHOICES
+
+    assert stream.STREAM_PRECISION_CHOICES == STREAM_PRECISION_CHOICES
+
+
 def test_ls_lists_three_kinds(capsys):
     assert main(["ls"]) == 0
     out = capsys.readouterr().out
