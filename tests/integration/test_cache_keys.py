@@ -104,9 +104,10 @@ def _direct_and_changed(before, after) -> tuple[set[str], set[str]]:
     # GRIP's sensors: GRIP's variants and the retrieval baseline that reads GRIP's sensors
     ("grip_bench/sensors.py", "sensors"),
     # distances: SynthGRAB's grasp search, the metrics and every method, not the perturbation
-    ("grip_bench/geometry/distance.py", "distance"),
+    # (this and the next ~27 s each: `pytest -m slow`, to keep the default run under 10 min)
+    pytest.param("grip_bench/geometry/distance.py", "distance", marks=pytest.mark.slow),
     # the hand model: everything poses hands
-    ("grip_bench/bodies/hand.py", "hand"),
+    pytest.param("grip_bench/bodies/hand.py", "hand", marks=pytest.mark.slow),
 ])
 def test_an_edit_renews_exactly_the_units_that_run_the_code(source_copy, baseline, tmp_path,
                                                              rel, expect):

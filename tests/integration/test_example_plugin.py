@@ -125,6 +125,7 @@ def trained(venv: Path, data: Path, tmp_path_factory: pytest.TempPathFactory) ->
     return root
 
 
+@pytest.mark.slow  # 70 s of training, prediction and evaluation through the new environment
 def test_train_predict_evaluate(trained: Path, data: Path) -> None:
     from grip_bench.data.grab_io import list_sequences, read_grab
 
