@@ -21,9 +21,9 @@ fi
 ruff check grip_bench baselines tests tools
 lint-imports --no-cache
 # The tests run in N processes (pytest-xdist), each taking whole files so that a file's
-# module fixtures are built once: by default one per core, at most 4 (on 2 quiet cores the
-# run took 9.6 min against 14.7 in one process, s35, and 11.1 min after the hold test's
-# per-frame piece bound); GRIP_BENCH_TEST_WORKERS=N sets N, 0 runs one process
+# module fixtures are built once: by default one per core, at most 4 (on 2 quiet cores
+# 8.9 min from a fresh clone in s36, against 14.7 in one process in s35);
+# GRIP_BENCH_TEST_WORKERS=N sets N, 0 runs one process
 CORES=$(nproc 2>/dev/null || echo 1)
 WORKERS=${GRIP_BENCH_TEST_WORKERS:-$(( CORES < 4 ? CORES : 4 ))}
 [ "$WORKERS" = 1 ] && WORKERS=0  # one worker process is one process with extra start-up
