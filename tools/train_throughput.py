@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from grip_bench.data.grab_io import dataset_hash
 from grip_bench.data.library import ObjectLibrary
 from grip_bench.grip import train as T
 from grip_bench.nn import ddp
@@ -101,8 +102,6 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp, T.deterministic():
         cache = a.cache or Path(tmp)
         t0 = time.perf_counter()
-        from grip_bench.data.grab_io import dataset_hash
-
         data = T._features(a.data, cache, variant, hp["seed"], dataset_hash(a.data), False)
         result["features_s"] = time.perf_counter() - t0
         nets = T._build_nets(T.build_configs(hp, variant), hp["seed"], {}, dev)

@@ -316,8 +316,7 @@ def refine_pieces(pieces: SurfacePieces, errors: np.ndarray, vertices: np.ndarra
                 todo.extend(_split(p, centroids))
             else:
                 patches.append((p, depth))
-    new = surface_pieces(v, f, sdf=sdf or ExactDistance(v, f), patches=patches,
-                         normals=vertex_normals(v, f) if normals is None else normals)
+    new = surface_pieces(v, f, sdf=sdf, patches=patches, normals=normals)
     keep.sort()
     return SurfacePieces(tuple(pieces.vertex_ids[i] for i in keep) + new.vertex_ids,
                          np.concatenate([pieces.depth[keep], new.depth]),

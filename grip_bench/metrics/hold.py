@@ -171,11 +171,10 @@ def hand_pieces(template: np.ndarray, faces: np.ndarray, bone_ids: np.ndarray,
     return _OBJECT_PIECES[key]
 
 
-def _errors_on(pieces: SurfacePieces, vertices: np.ndarray, faces: np.ndarray,
-               sdf: ExactDistance | None = None) -> np.ndarray:
+def _errors_on(pieces: SurfacePieces, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Outward errors (P,) m of ``pieces`` re-posed on ``vertices`` (V, 3)."""
-    sdf = sdf or ExactDistance(vertices, faces)
-    return outward_errors(pieces.points(vertices, vertex_normals(vertices, faces)), sdf)
+    return outward_errors(pieces.points(vertices, vertex_normals(vertices, faces)),
+                          ExactDistance(vertices, faces))
 
 
 def posed_pieces(hand: PosedHand, obj_world: np.ndarray) -> SurfacePieces:
