@@ -16,6 +16,7 @@ from grip_bench.report.render import FORMATS, render, render_all, render_table
 from grip_bench.report.tables import TABLES, compute_table
 from grip_bench.results import schema as R
 from grip_bench.results.schema import ResultRow, write_results, write_runtime
+from grip_bench.results.stats import bootstrap_ci
 
 from .test_bench_results import UNITS, synthetic_results
 
@@ -242,8 +243,11 @@ def test_before_after_cells():
     assert mpvpe[0] == "| TOCH-style | 17.00 → 11.80 [11.80, 11.80] | – | – | – |"
     assert mpvpe[1] == "| GRIP (ANet+RNet) | 17.00 → **10.30** [10.30, 10.30] | – | – | – |"
     # after without a before shows "–" before the arrow; sequences 3.0 (mug), 3.5 (apple),
-    # 4.0 (mug): stratified resamples keep one apple, so the means span [19/6, 23/6]
-    assert "| GRIP (ANet+RNet) | – | – | – → **3.50** [3.17, 3.83] | – |" in md
+    # 4.0 (mug): the apple, alone in its stratum, is resampled with the mugs, so the
+    # interval is the plain bootstrap's of the three values (not the zero-spread apple's)
+    plain = bootstrap_ci([3.0, 3.5, 4.0], None, n_boot=200)
+    assert (plain.lo, plain.hi) == (pytest.approx(19 / 6), 4.0)
+    assert "| GRIP (ANet+RNet) | – | – | – → **3.50** [3.17, 4.00] | – |" in md
     tidy = render_table("table3_perturbation", _table3_frame(), "csv", n_boot=20)
     row = [ln for ln in tidy.splitlines() if ",GRIP (ANet+RNet),false,GRAB-T,(0.01)," in ln
            and ",mpvpe," in ln][0]

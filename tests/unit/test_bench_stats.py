@@ -133,3 +133,31 @@ def test_weighted_bootstrap_matches_a_loop_and_equal_weights_match_the_plain_one
 def test_unknown_averaging_is_an_input_error():
     with pytest.raises(InputError, match="unknown averaging"):
         sequence_ci(_rows([1.0], [3], ["a"], ["s"]), averaging="median")
+
+
+def test_one_sequence_strata_are_resampled_together():
+    # one sequence per object: a stratified bootstrap that kept them apart would give a
+    # zero-width interval; collapsed, it is the plain bootstrap of the same values
+    rng = np.random.default_rng(2)
+    v = rng.normal(size=8)
+    objects = [f"o{k}" for k in range(8)]
+    ci = bootstrap_ci(v, objects, seed=4)
+    assert ci == bootstrap_ci(v, None, seed=4) and ci.hi - ci.lo > 0.5
+    # objects a (3 x 0.0) kept; b (10) and c (20) resampled together: every resample has
+    # three a's and two of {b, c}, so the means are (0 + {20, 30, 40}) / 5 exactly
+    means = bootstrap_means([0.0, 0.0, 0.0, 10.0, 20.0], list("aaabc"), n_boot=400, seed=1)
+    assert set(np.round(means, 9)) == {4.0, 6.0, 8.0}
+    # a lone one-sequence object joins the smallest other stratum: c (6) with a (0, 0),
+    # b (1, 1, 1) apart -> (3 + 6 k) / 6 for k = 0..3 draws of c
+    means = bootstrap_means([0.0, 0.0, 1.0, 1.0, 1.0, 6.0], list("aabbbc"), n_boot=600, seed=1)
+    assert set(np.round(means, 9)) == {0.5, 1.5, 2.5, 3.5}
+
+
+def test_stratum_codes_follow_the_labels_not_the_row_order():
+    from grip_bench.results.stats import stratum_codes
+
+    assert stratum_codes(list("aabbbc")).tolist() == [0, 0, 1, 1, 1, 0]
+    assert stratum_codes(list("cbbbaa")).tolist() == [0, 1, 1, 1, 0, 0]
+    assert stratum_codes(list("abcc")).tolist() == [0, 0, 1, 1]
+    assert stratum_codes(list("abc")).tolist() == [0, 0, 0]
+    assert stratum_codes([]).size == 0

@@ -68,6 +68,7 @@ from ...results.stats import (
     per_sequence,
     pooled_per_sequence,
     sequence_ci,
+    stratum_codes,
 )
 
 if TYPE_CHECKING:
@@ -562,7 +563,7 @@ def paired_difference_ci(
     va, vb, wa, wb = va[ok], vb[ok], wa[ok], wb[ok]
     strata = m["object"].to_numpy()[ok]
     mean = float((va * wa).sum() / wa.sum() - (vb * wb).sum() / wb.sum())
-    _, codes = np.unique(strata, return_inverse=True)
+    codes = stratum_codes(strata)
     order = np.lexsort((vb, va, codes))  # independent of the input row order
     va, vb, wa, wb, codes = va[order], vb[order], wa[order], wb[order], codes[order]
     sizes = np.bincount(codes)
