@@ -24,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--split", default="test", help="split to degrade (default test)")
     p.add_argument("--sequences", type=int, default=4, metavar="N",
-                   help="first N sequences of the split (default 4; each costs ~2 s per level)")
+                   help="N sequences of the split, spread over its objects (default 4; "
+                        "each costs ~2 s per level without --physics)")
     p.add_argument("--seed", type=int, default=0, help="noise and bootstrap seed (default 0)")
     p.add_argument("--physics", action="store_true",
                    help="include the MuJoCo metrics (2 held frames per sequence and hand)")

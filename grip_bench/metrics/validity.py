@@ -19,10 +19,12 @@ new samples at every level.
 
 from __future__ import annotations
 
+import itertools
 import zlib
 from collections.abc import Callable, Mapping
 from collections.abc import Sequence as Seq
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -401,6 +403,25 @@ def tolerance(unit: str, v0: float) -> float:
 
 
 # ------------------------------------------------------------------ measuring
+def spread_over_objects(files: Seq[Path], n: int) -> list[Path]:
+    """``n`` of ``files`` taken round-robin over their objects: the first sequence of each
+    object (objects in order of first appearance), then the second of each, and so on, in
+    file order within an object.
+
+    Why: the first files of a GRAB-layout split are one subject's, often several takes of
+    one object; spreading covers as many objects as ``n`` allows, and the bootstrap over
+    the chosen sequences then varies the objects, not one object's takes.
+    """
+    from ..data.grab_io import read_grab_header
+
+    by_object: dict[str, list[Path]] = {}
+    for f in files:
+        by_object.setdefault(str(read_grab_header(f)["obj_name"]), []).append(f)
+    order = [f for rank in itertools.zip_longest(*by_object.values()) for f in rank
+             if f is not None]
+    return order[:n]
+
+
 def metric_validity(data_dir: str, split: str = "test", sequences: int = 4, seed: int = 0,
                     options: EvalOptions | None = None,
                     degradations: Seq[str] | None = None,
@@ -408,7 +429,7 @@ def metric_validity(data_dir: str, split: str = "test", sequences: int = 4, seed
                     levels: Mapping[str, Seq[float]] | None = None,
                     workers: int = 1) -> pd.DataFrame:
     """Each metric's response to each degradation level on ``sequences`` ground-truth
-    sequences of ``split`` (the first ones in file order); ``levels`` overrides the
+    sequences of ``split`` (:func:`spread_over_objects`); ``levels`` overrides the
     registry's levels (SI) of some degradations; ``options`` default: physics off.
 
     Returns a frame with columns degradation, level (the degradation's unit), metric, unit,
@@ -418,8 +439,6 @@ def metric_validity(data_dir: str, split: str = "test", sequences: int = 4, seed
     ``workers`` > 1 evaluates the (degradation, level, sequence) jobs in the evaluation's
     process pool (``metrics.aggregate.map_tasks``): the same values as one worker.
     """
-    from pathlib import Path
-
     import pandas as pd
 
     from ..data.splits import sequences_in_split
@@ -432,7 +451,7 @@ def metric_validity(data_dir: str, split: str = "test", sequences: int = 4, seed
     chosen = degradation_levels(levels, degradations)
     if sequences < 1:
         raise InputError(f"need at least one sequence, got {sequences}", "sequences")
-    files = sequences_in_split(data_dir, split)[:sequences]
+    files = spread_over_objects(sequences_in_split(data_dir, split), sequences)
     if not files:
         raise InputError(f"no ground-truth sequences in split '{split}'", str(data_dir))
     jobs = [(d, lv, str(f), seed, options) for d, lvs in chosen.items() for lv in lvs

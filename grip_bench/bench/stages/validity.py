@@ -14,8 +14,9 @@ VALIDITY_FILE = "validity.csv"
 
 
 def measure_validity(st: RunState, unit: Unit, tmp: Path) -> dict:
-    """Degrade the first ``sequences`` test sequences at every level and evaluate each level
-    against the ground truth; the options, levels, seed and split are the unit's inputs.
+    """Degrade ``sequences`` test sequences (spread over the objects) at every level and
+    evaluate each level against the ground truth; the options, levels, seed and split are
+    the unit's inputs.
     The evaluations run in the evaluation stage's process pool (the same values for any
     number of workers, so ``--workers`` is not part of the key)."""
     from ...core.io import atomic_write_text
