@@ -787,11 +787,12 @@ def _held(res: list[HoldResult | None]) -> np.ndarray:
 
 _HOLD_DEF = ("the articulated hand (one body per bone, capped position servos, wrist fixed), "
              "its fingers within 2 mm tightened 1.5 mm, holds the object through 0.2 s of "
-             "settling and 1 s under {g} (moves < 2 cm, turns < 15 degrees, settles <= 5 mm; "
-             "diverged = failed; mu = {mu}; [run] physics_frames held frames)")
+             "settling and 1 s under {g} (moves < 2 cm, turns < 15 degrees, settles <= 5 mm, "
+             "no hand vertex starts > 5 mm inside; diverged = failed; mu = {mu}; [run] "
+             "physics_frames held frames)")
 
 
-@metric("hold_sim", "Articulated hold (MuJoCo)", "%", 1e2, True, "held", 1,
+@metric("hold_sim", "Articulated hold (MuJoCo)", "%", 1e2, True, "held", 2,
         "share of tested held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=1),
         leaderboard=False)
 def m_hold_sim(pair: SequencePair, side: str) -> Measured:
@@ -812,7 +813,7 @@ def m_hold_sim_disp(pair: SequencePair, side: str) -> Measured:
                     frame_rows=False)
 
 
-@metric("hold_sim_mu05", "Articulated hold (mu = 0.5)", "%", 1e2, True, "held", 1,
+@metric("hold_sim_mu05", "Articulated hold (mu = 0.5)", "%", 1e2, True, "held", 2,
         "hold_sim at mu = 0.5 (friction sensitivity; physics table only): share of tested "
         "held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=0.5),
         leaderboard=False)
@@ -821,7 +822,7 @@ def m_hold_sim_mu05(pair: SequencePair, side: str) -> Measured:
     return Measured(idx, _held(res))
 
 
-@metric("hold_sim_mu3", "Articulated hold (mu = 3)", "%", 1e2, True, "held", 1,
+@metric("hold_sim_mu3", "Articulated hold (mu = 3)", "%", 1e2, True, "held", 2,
         "hold_sim at mu = 3 (friction sensitivity; physics table only): share of tested "
         "held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=3),
         leaderboard=False)
@@ -830,7 +831,7 @@ def m_hold_sim_mu3(pair: SequencePair, side: str) -> Measured:
     return Measured(idx, _held(res))
 
 
-@metric("hold_sim_axes", "Articulated hold (6 gravity directions)", "%", 1e2, True, "held", 1,
+@metric("hold_sim_axes", "Articulated hold (6 gravity directions)", "%", 1e2, True, "held", 2,
         "robustness of hold_sim (physics table only): share of (frame, direction) tests, "
         "gravity along each of the world's six axis directions after one shared settle, where "
         + _HOLD_DEF.format(g="that gravity", mu=1), leaderboard=False)

@@ -17,7 +17,10 @@ Two tests share one scene per frame:
   displacement beyond ``HOLD_SETTLE_FAIL`` fails), then holds ``SIM_HOLD_SECONDS`` under the
   frame's gravity, or under each of the six axis directions as a robustness variant.
   Success: the object moves less than ``HOLD_DISP`` and turns less than ``HOLD_ROT``
-  during the hold. A diverged run is a failure with the capped displacement, never dropped.
+  during the hold, and no hand vertex started more than ``HOLD_MAX_DEPTH`` inside the
+  object (the force check's rule: the damped settle lets a penetrating hand wedge the
+  object instead of pushing it out, so the settle rule alone passed fingers closed 0.4 rad
+  into it). A diverged run is a failure with the capped displacement, never dropped.
 - **Support test** (GRIP supp. Sec. 11): from rest, under gravity, with the hand as it is,
   the object moves < 1 mm in 5 steps of 1/240 s. Free fall alone moves it 2.55 mm
   (``SIM_FREE_FALL_5``), so the test tells "something supports it" from "nothing does".
@@ -261,6 +264,7 @@ class Scene:
     targets: np.ndarray
     n_hands: int
     hand_error: float = 0.0  # m, the largest outward error of the hands' pieces on this pose
+    depth: float = 0.0  # m, the deepest hand vertex inside the object (0: none inside)
 
 
 def _spec(up: tuple[float, float, float], friction: float = C.SIM_FRICTION) -> mujoco.MjSpec:
@@ -350,7 +354,8 @@ def hand_scene(hands: list[PosedHand], obj: trimesh.Trimesh,
     mujoco.mj_forward(model, data)
     targets = np.concatenate([_tighten(model, data, hand, f"h{k}")
                               for k, hand in enumerate(hands)]) if hands else np.zeros(0)
-    return Scene(model, targets, len(hands), error)
+    depth = max([0.0, *(-float(np.min(h.signed_dist)) for h in hands if len(h.signed_dist))])
+    return Scene(model, targets, len(hands), error, depth)
 
 
 def _add_hand(spec: mujoco.MjSpec, hand: PosedHand, name: str,
@@ -488,7 +493,9 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
          friction: float = C.SIM_FRICTION) -> list[HoldResult]:
     """The hold test of a compiled scene: settle once, then one hold per gravity direction
     (None: the world's, ``-g up``; else an axis such as "+x", the direction gravity pulls).
-    ``friction``: sliding friction of every geom for this run."""
+    ``friction``: sliding friction of every geom for this run. A scene whose hands start
+    more than ``HOLD_MAX_DEPTH`` inside the object is simulated (its displacements are
+    measured) but never held."""
     import mujoco
 
     model = scene.model
@@ -513,7 +520,8 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
                 continue
             p1, q1 = _pose_of(model, run)
             disp, rot = float(np.linalg.norm(p1 - p0)), _angle(q0, q1)
-            ok = settle <= C.HOLD_SETTLE_FAIL and disp < C.HOLD_DISP and rot < C.HOLD_ROT
+            ok = (scene.depth <= C.HOLD_MAX_DEPTH and settle <= C.HOLD_SETTLE_FAIL
+                  and disp < C.HOLD_DISP and rot < C.HOLD_ROT)
             out.append(HoldResult(settle, disp, rot, bool(ok), False))
         return out
     finally:

@@ -233,6 +233,28 @@ def test_posed_hands_feed_the_articulated_hold_test(fixture):
             assert r.held == held
 
 
+def test_a_hand_starting_deeper_than_the_bound_is_never_held(fixture):
+    """The articulated test fails a hand whose deepest vertex starts more than
+    ``HOLD_MAX_DEPTH`` inside (the force check's rule: the damped settle lets penetrating
+    fingers wedge the object). The scene's depth is the posed hands' deepest signed
+    distance; the simulation itself, and so the displacements, do not change."""
+    from dataclasses import replace
+
+    lib, seqs = fixture
+    mug = seqs[0]  # its ground-truth grasp holds (measured)
+    pair = SequencePair(mug, mug, lib, EvalOptions(), FailureCounter())
+    t = int(physics_frames(pair, "right")[0])
+    hands = posed_hands(pair, t)
+    scene = H.hand_scene(hands, pair.mesh, object_pose(pair, t), pair.options.up)
+    naive = max(0.0, max(-float(np.min(h.signed_dist)) for h in hands))
+    assert scene.depth == naive and 0.0 < scene.depth < C.HOLD_MAX_DEPTH
+    shallow = H.hold(scene, pair.options.up)[0]
+    deep = H.hold(replace(scene, depth=C.HOLD_MAX_DEPTH + 1e-4), pair.options.up)[0]
+    assert shallow.held and not deep.held and not deep.diverged
+    assert (deep.settle, deep.displacement, deep.rotation) == (
+        shallow.settle, shallow.displacement, shallow.rotation)
+
+
 def _hold_sim(pred, gt, lib, failures=None) -> dict[tuple[str, str], float]:
     rows, _ = evaluate_sequence(pred, gt, lib, options=EvalOptions(
         metrics=("hold_sim", "hold_sim_disp")), failures=failures or FailureCounter())
