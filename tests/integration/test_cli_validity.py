@@ -5,11 +5,13 @@ from __future__ import annotations
 import shutil
 
 import pandas as pd
+import pytest
 
 from grip_bench.cli.main import main
 from tests.eval_fixtures import grasp_dataset
 
 
+@pytest.mark.slow  # 34 s; its claims on this data: tests/unit/test_metric_validity.py
 def test_validity_command_writes_table_and_figure_and_report_keeps_them(tmp_path, capsys):
     data = tmp_path / "data"
     grasp_dataset(data, T=40)
