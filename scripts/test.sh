@@ -22,7 +22,7 @@ ruff check grip_bench baselines tests tools
 lint-imports --no-cache
 # The tests run in N processes (pytest-xdist), each taking whole files so that a file's
 # module fixtures are built once: by default one per core, at most 4 (on 2 quiet cores
-# 9.0 min from a fresh clone in s36, against 14.7 in one process in s35);
+# 9.0 min from a fresh clone in s36, 9.6 in s37, against 14.7 in one process in s35);
 # GRIP_BENCH_TEST_WORKERS=N sets N, 0 runs one process
 CORES=$(nproc 2>/dev/null || echo 1)
 WORKERS=${GRIP_BENCH_TEST_WORKERS:-$(( CORES < 4 ? CORES : 4 ))}
