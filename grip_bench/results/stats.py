@@ -187,6 +187,26 @@ def pooled_per_sequence(rows: pd.DataFrame) -> pd.DataFrame:
     return g.rename(columns={"n": "weight"}).drop(columns="vn")
 
 
+def stratified_draws(strata: ArrayLike, sort_keys: tuple[np.ndarray, ...], n_boot: int,
+                     seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """One seeded stratified resampling of ``n`` sequences, drawn all at once.
+
+    Returns ``order`` (n,), which sorts them by (stratum, ``sort_keys`` last key first, as
+    ``np.lexsort``) so that the draws do not depend on the input row order, and ``idx``
+    (n_boot, n): each resample's positions into the sorted sequences, every stratum drawing
+    its own size with replacement (:func:`stratum_codes`: one-member strata collapsed).
+    """
+    codes = stratum_codes(strata)
+    order = np.lexsort((*sort_keys, codes))
+    codes = codes[order]
+    sizes = np.bincount(codes)
+    start = np.concatenate([[0], np.cumsum(sizes)[:-1]])[codes]
+    size = sizes[codes]
+    rng = np.random.default_rng(seed)
+    u = rng.random((n_boot, len(codes)))
+    return order, start + np.minimum((u * size).astype(np.int64), size - 1)
+
+
 def weighted_bootstrap_ci(values: ArrayLike, weights: ArrayLike, strata: ArrayLike | None = None,
                           n_boot: int = BOOTSTRAP_N, seed: int = BOOTSTRAP_SEED,
                           alpha: float = BOOTSTRAP_ALPHA) -> CI:
@@ -204,14 +224,8 @@ def weighted_bootstrap_ci(values: ArrayLike, weights: ArrayLike, strata: ArrayLi
     mean = float((v * w).sum() / w.sum())
     if v.min() == v.max():
         return CI(float(v[0]), float(v[0]), float(v[0]), n, n_nan)
-    codes = stratum_codes(s)
-    order = np.lexsort((w, v, codes))  # independent of the input row order
-    v, w, codes = v[order], w[order], codes[order]
-    sizes = np.bincount(codes)
-    start = np.concatenate([[0], np.cumsum(sizes)[:-1]])[codes]
-    size = sizes[codes]
-    rng = np.random.default_rng(seed)
-    idx = start + np.minimum((rng.random((n_boot, n)) * size).astype(np.int64), size - 1)
+    order, idx = stratified_draws(s, (w, v), n_boot, seed)
+    v, w = v[order], w[order]
     boots = (v[idx] * w[idx]).sum(axis=1) / w[idx].sum(axis=1)
     lo, hi = np.quantile(boots, [alpha / 2, 1 - alpha / 2])
     return CI(mean, float(lo), float(hi), n, n_nan)

@@ -68,7 +68,7 @@ from ...results.stats import (
     per_sequence,
     pooled_per_sequence,
     sequence_ci,
-    stratum_codes,
+    stratified_draws,
 )
 
 if TYPE_CHECKING:
@@ -563,14 +563,8 @@ def paired_difference_ci(
     va, vb, wa, wb = va[ok], vb[ok], wa[ok], wb[ok]
     strata = m["object"].to_numpy()[ok]
     mean = float((va * wa).sum() / wa.sum() - (vb * wb).sum() / wb.sum())
-    codes = stratum_codes(strata)
-    order = np.lexsort((vb, va, codes))  # independent of the input row order
-    va, vb, wa, wb, codes = va[order], vb[order], wa[order], wb[order], codes[order]
-    sizes = np.bincount(codes)
-    start = np.concatenate([[0], np.cumsum(sizes)[:-1]])[codes]
-    size = sizes[codes]
-    rng = np.random.default_rng(seed)
-    idx = start + np.minimum((rng.random((n_boot, n)) * size).astype(np.int64), size - 1)
+    order, idx = stratified_draws(strata, (vb, va), n_boot, seed)
+    va, vb, wa, wb = va[order], vb[order], wa[order], wb[order]
     boots = ((va[idx] * wa[idx]).sum(axis=1) / wa[idx].sum(axis=1)
              - (vb[idx] * wb[idx]).sum(axis=1) / wb[idx].sum(axis=1))
     lo, hi = np.quantile(boots, [alpha / 2, 1 - alpha / 2])
