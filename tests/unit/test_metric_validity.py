@@ -63,6 +63,30 @@ def test_sequences_are_spread_over_objects(monkeypatch):
     assert V.spread_over_objects(files, 0) == []
 
 
+
+def test_level_zero_runs_once_per_sequence_and_serves_every_degradation(data, monkeypatch):
+    """The ground truth at level 0 is the same evaluation under every degradation: it runs
+    once per sequence, and each degradation's level-0 rows are that run's, as evaluating
+    the ground truth on its own gives them."""
+    root, _, _ = data
+    calls = []
+    job_rows = V._job_rows
+    monkeypatch.setattr(V, "_job_rows", lambda job: calls.append(job) or job_rows(job))
+    opts = EvalOptions(metrics=("mpjpe", "hold_qs"), max_physics_frames=2, max_iv_frames=0)
+    df = V.metric_validity(str(root), "test", sequences=2, seed=0, options=opts,
+                           degradations=("wrist", "close", "push"))
+    zero = [j for j in calls if j[1] == 0]
+    assert len(zero) == 2 and len({j[2] for j in zero}) == 2  # one per sequence
+    assert len(calls) == 2 + 2 * sum(len(V.DEGRADATIONS[d].levels) - 1
+                                     for d in ("wrist", "close", "push"))
+    alone = V._job_rows(("push", 0.0, zero[0][2], 0, opts))
+    assert {r["degradation"] for r in alone} == {"push"}
+    lv0 = df[df["level"] == 0].set_index(["degradation", "metric"])["value"]
+    for metric in ("mpjpe", "hold_qs"):
+        assert lv0.xs(metric, level="metric").nunique() == 1
+    assert set(lv0.index.get_level_values("degradation")) == {"wrist", "close", "push"}
+
+
 # ------------------------------------------------------------------ each degradation
 def test_level_zero_is_the_ground_truth_and_the_input_is_never_modified(data):
     _, lib, seqs = data
