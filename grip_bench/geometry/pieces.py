@@ -173,30 +173,48 @@ def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return np.stack([1.0 - b1 - b2, b1, b2], axis=1)
 
 
-def hull_samples(points: np.ndarray) -> np.ndarray:
-    """Points on the convex hull's surface (M, 3): its vertices, face centroids and edge
-    midpoints, where a hull bridging a concavity sticks out furthest. Flat or degenerate
-    point sets return the points themselves."""
+def hull_samples(point_sets: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Points on each set's convex hull surface, all sets at once: samples (M, 3) and the
+    set each belongs to, owner (M,). Per hull: its vertices, face centroids and edge
+    midpoints (each edge once), where a hull bridging a concavity sticks out furthest; a
+    flat or degenerate set gives its points themselves. One gather for every set (building
+    the samples hull by hull cost about as much as Qhull itself, ~0.1 ms a piece)."""
     from scipy.spatial import ConvexHull, QhullError
 
-    try:
-        hull = ConvexHull(points)
-    except (QhullError, ValueError):
-        return np.asarray(points, dtype=np.float64)
-    tri = hull.points[hull.simplices]  # (K, 3, 3)
-    mids = 0.5 * (tri + np.roll(tri, 1, axis=1))
-    return np.concatenate([hull.points[hull.vertices], tri.mean(1), mids.reshape(-1, 3)])
+    pts = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in point_sets]
+    starts = np.cumsum([0] + [len(p) for p in pts[:-1]])
+    ids, owner, tris, tri_owner = [], [], [], []
+    for i, (p, s0) in enumerate(zip(pts, starts, strict=True)):
+        try:
+            hull = ConvexHull(p)
+        except (QhullError, ValueError):
+            ids.append(s0 + np.arange(len(p)))
+        else:
+            ids.append(s0 + hull.vertices)
+            tris.append(s0 + hull.simplices)
+            tri_owner.append(np.full(len(hull.simplices), i))
+        owner.append(np.full(len(ids[-1]), i))
+    every = np.concatenate(pts) if pts else np.zeros((0, 3))
+    samples, owners = [every[np.concatenate(ids)]], [np.concatenate(owner)]
+    if tris:
+        tri, tri_own = np.concatenate(tris), np.concatenate(tri_owner)
+        edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+        _, once = np.unique(edges[:, 0] * len(every) + edges[:, 1], return_index=True)
+        edges = edges[once]
+        samples += [every[tri].mean(1), 0.5 * (every[edges[:, 0]] + every[edges[:, 1]])]
+        owners += [tri_own, np.tile(tri_own, 3)[once]]
+    return np.concatenate(samples), np.concatenate(owners)
 
 
 def outward_errors(point_sets: list[np.ndarray], sdf: ExactDistance) -> np.ndarray:
     """Measured outward error (P,) m of each point set's hull against the surface of
     ``sdf``: the largest signed distance of its hull samples, 0 when none is outside."""
-    samples = [hull_samples(p) for p in point_sets]
-    if not samples:
+    if not len(point_sets):
         return np.zeros(0)
-    d = sdf(np.concatenate(samples))
-    ends = np.cumsum([len(s) for s in samples])
-    return np.maximum(np.maximum.reduceat(d, np.r_[0, ends[:-1]]), 0.0)
+    samples, owner = hull_samples(point_sets)
+    err = np.zeros(len(point_sets))
+    np.maximum.at(err, owner, sdf(samples))
+    return err
 
 
 def _split(faces_idx: np.ndarray, centroids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

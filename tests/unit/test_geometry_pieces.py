@@ -149,3 +149,28 @@ def test_round_trip_through_arrays():
     assert all(np.array_equal(a, b) for a, b in zip(back.vertex_ids, pieces.vertex_ids,
                                                           strict=True))
     assert np.array_equal(back.error, pieces.error)
+
+
+def test_hull_samples_of_many_sets_equal_a_loop_over_each_hull():
+    """``hull_samples`` gathers every set's hull vertices, face centroids and edge midpoints
+    at once; a per-hull loop (midpoints of every face's three edges, so each edge twice) has
+    the same points per set, and flat or degenerate sets give their own points."""
+    from scipy.spatial import ConvexHull
+
+    from grip_bench.geometry.pieces import hull_samples
+
+    rng = np.random.default_rng(3)
+    sets = [rng.normal(size=(n, 3)) * [1, 1, 0.2] for n in (4, 9, 30)]
+    sets += [np.zeros((3, 3)), rng.normal(size=(6, 3)) * [1, 1, 0]]  # a point, a plane
+    samples, owner = hull_samples(sets)
+    for i, p in enumerate(sets):
+        mine = samples[owner == i]
+        if i >= 3:
+            np.testing.assert_array_equal(mine, p)
+            continue
+        h = ConvexHull(p)
+        tri = p[h.simplices]
+        ref = np.concatenate([p[h.vertices], tri.mean(1),
+                              (0.5 * (tri + tri[:, [1, 2, 0]])).reshape(-1, 3)])
+        assert len(mine) == len(h.vertices) + len(tri) + len(tri) * 3 // 2  # Euler: E = 3F/2
+        assert {tuple(x) for x in mine} == {tuple(x) for x in ref}
