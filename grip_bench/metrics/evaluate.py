@@ -31,7 +31,7 @@ shared by the two hands.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING
@@ -623,18 +623,20 @@ def m_hold_qs(pair: SequencePair, side: str) -> Measured:
     return _qs(pair, side, C.SIM_FRICTION)
 
 
-@metric("hold_qs_mu05", "Quasi-static hold (mu = 0.5)", "%", 1e2, True, "held", 1,
-        "hold_qs at mu = 0.5 (friction sensitivity; physics table only): share of frames "
-        "whose " + _QS_DEF.format(mu=0.5, g="gravity"), leaderboard=False)
-def m_hold_qs_mu05(pair: SequencePair, side: str) -> Measured:
-    return _qs(pair, side, C.HOLD_MU_SENSITIVITY[0])
+def _friction_rows(base: str, name: str, version: int, what: str,
+                   compute: Callable[[SequencePair, str, float], Measured]) -> None:
+    """Register ``<base>_mu05`` and ``<base>_mu3``: the friction sensitivity rows of a hold
+    test at each mu of ``HOLD_MU_SENSITIVITY`` (physics table only); ``what`` completes the
+    definition and takes ``{mu}``."""
+    for mu in C.HOLD_MU_SENSITIVITY:
+        metric(f"{base}_mu{mu:g}".replace(".", ""), f"{name} (mu = {mu:g})", "%", 1e2, True,
+               "held", version, f"{base} at mu = {mu:g} (friction sensitivity; physics table "
+               f"only): {what.format(mu=f'{mu:g}')}", leaderboard=False)(
+            lambda pair, side, mu=mu: compute(pair, side, mu))
 
 
-@metric("hold_qs_mu3", "Quasi-static hold (mu = 3)", "%", 1e2, True, "held", 1,
-        "hold_qs at mu = 3 (friction sensitivity; physics table only): share of frames "
-        "whose " + _QS_DEF.format(mu=3, g="gravity"), leaderboard=False)
-def m_hold_qs_mu3(pair: SequencePair, side: str) -> Measured:
-    return _qs(pair, side, C.HOLD_MU_SENSITIVITY[1])
+_friction_rows("hold_qs", "Quasi-static hold", 1,
+               "share of frames whose " + _QS_DEF.replace("{g}", "gravity"), _qs)
 
 
 @metric("hold_qs_axes", "Quasi-static hold (6 gravity directions)", "%", 1e2, True, "held", 1,
@@ -796,7 +798,11 @@ _HOLD_DEF = ("the articulated hand (one body per bone, capped position servos, w
         "share of tested held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=1),
         leaderboard=False)
 def m_hold_sim(pair: SequencePair, side: str) -> Measured:
-    idx, res = _hold_sim(pair, side)
+    return _sim_share(pair, side, C.SIM_FRICTION)
+
+
+def _sim_share(pair: SequencePair, side: str, mu: float) -> Measured:
+    idx, res = _hold_sim(pair, side, mu)
     return Measured(idx, _held(res))
 
 
@@ -813,22 +819,9 @@ def m_hold_sim_disp(pair: SequencePair, side: str) -> Measured:
                     frame_rows=False)
 
 
-@metric("hold_sim_mu05", "Articulated hold (mu = 0.5)", "%", 1e2, True, "held", 2,
-        "hold_sim at mu = 0.5 (friction sensitivity; physics table only): share of tested "
-        "held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=0.5),
-        leaderboard=False)
-def m_hold_sim_mu05(pair: SequencePair, side: str) -> Measured:
-    idx, res = _hold_sim(pair, side, C.HOLD_MU_SENSITIVITY[0])
-    return Measured(idx, _held(res))
-
-
-@metric("hold_sim_mu3", "Articulated hold (mu = 3)", "%", 1e2, True, "held", 2,
-        "hold_sim at mu = 3 (friction sensitivity; physics table only): share of tested "
-        "held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=3),
-        leaderboard=False)
-def m_hold_sim_mu3(pair: SequencePair, side: str) -> Measured:
-    idx, res = _hold_sim(pair, side, C.HOLD_MU_SENSITIVITY[1])
-    return Measured(idx, _held(res))
+_friction_rows("hold_sim", "Articulated hold", 2, "share of tested held frames where "
+               + _HOLD_DEF.replace("{g}", "the frame's gravity"),
+               lambda pair, side, mu: _sim_share(pair, side, mu))
 
 
 @metric("hold_sim_axes", "Articulated hold (6 gravity directions)", "%", 1e2, True, "held", 2,
