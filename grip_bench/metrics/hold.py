@@ -321,7 +321,20 @@ def static_scene(hand_meshes: list[trimesh.Trimesh], obj: trimesh.Trimesh,
                     f"hand{i}_", hand=True)
         hand_world.extend(pts)
     _add_object(spec, obj, _select_object(local, obj_pose, hand_world), obj_pose, density)
-    return Scene(spec.compile(), np.zeros(0), len(hand_meshes))
+    return Scene(spec.compile(), np.zeros(0), len(hand_meshes),
+                 depth=_mesh_depth(hand_meshes, obj, obj_pose))
+
+
+def _mesh_depth(hand_meshes: list[trimesh.Trimesh], obj: trimesh.Trimesh,
+                pose: tuple[np.ndarray, np.ndarray] | None) -> float:
+    """The deepest hand vertex inside the object (m, 0: none inside), as ``PosedHand``'s
+    signed distances give it for the articulated hands: the depth rule of :func:`hold`."""
+    verts = [np.asarray(h.vertices, dtype=np.float64) for h in hand_meshes]
+    if not verts:
+        return 0.0
+    world = np.concatenate(verts)
+    local = world if pose is None else (world - np.asarray(pose[1])) @ np.asarray(pose[0])
+    return max(0.0, -float(ExactDistance(obj.vertices, obj.faces)(local).min()))
 
 
 def _select_object(local: list[np.ndarray], pose: tuple[np.ndarray, np.ndarray] | None,
@@ -653,5 +666,7 @@ def static_hold(hand_meshes: list[trimesh.Trimesh], obj: trimesh.Trimesh,
               density: float = C.DEFAULT_DENSITY) -> HoldResult:
     """The hold test against static hands (any closed meshes, world frame; no squeeze):
     settle, then 1 s under gravity ``-g up``. ``obj`` in its own frame, placed by
-    ``obj_pose`` = (R, t), world = R @ local + t. Never raises on a diverging simulation."""
+    ``obj_pose`` = (R, t), world = R @ local + t. As for articulated hands, a hand vertex
+    more than ``HOLD_MAX_DEPTH`` inside the object fails the test (a wedged object is not
+    held). Never raises on a diverging simulation."""
     return hold(static_scene(hand_meshes, obj, obj_pose, up, density), up)[0]

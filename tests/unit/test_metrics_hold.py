@@ -69,5 +69,30 @@ def test_cube_pinched_by_two_fingers_holds():
     assert r.held and r.displacement < 0.001
 
 
+
+def test_static_hands_sunk_past_the_depth_bound_do_not_hold():
+    """The depth rule of the articulated test holds for static hands too: pads 6 mm into
+    the cube wedge it (it settles and stays, as at 0.5 mm), but a hand vertex deeper than
+    HOLD_MAX_DEPTH fails the test; 4 mm in is within the bound and holds."""
+    cube = trimesh.creation.box(extents=[0.04] * 3)
+    pose = (np.eye(3), np.array([0.1, 0.2, 0.3]))  # placed away from the origin
+
+    def pads(depth):
+        out = []
+        for sign in (1, -1):
+            f = trimesh.creation.box(extents=[0.02, 0.015, 0.015])
+            f.apply_translation(pose[1] + [sign * (0.03 - depth), 0, 0])
+            out.append(f)
+        return out
+
+    deep = H.static_scene(pads(0.006), cube, pose)
+    assert deep.depth == pytest.approx(0.006, abs=1e-9)
+    sunk = H.hold(deep)[0]
+    assert not sunk.held and not sunk.diverged
+    assert sunk.displacement < C.HOLD_DISP and sunk.settle <= C.HOLD_SETTLE_FAIL  # wedged
+    within = H.static_hold(pads(0.004), cube, pose)
+    assert within.held and within.displacement < 0.001
+
+
 def test_support_test_free_fall_reference():
     assert abs(C.SIM_FREE_FALL_5 - 0.00255) < 1e-5
