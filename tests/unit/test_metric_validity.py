@@ -72,19 +72,19 @@ def test_level_zero_runs_once_per_sequence_and_serves_every_degradation(data, mo
     calls = []
     job_rows = V._job_rows
     monkeypatch.setattr(V, "_job_rows", lambda job: calls.append(job) or job_rows(job))
-    opts = EvalOptions(metrics=("mpjpe", "hold_qs"), max_physics_frames=2, max_iv_frames=0)
+    opts = EvalOptions(metrics=("mpjpe", "hold_qs"), max_physics_frames=1, max_iv_frames=0)
+    degs = ("wrist", "close", "push")
     df = V.metric_validity(str(root), "test", sequences=2, seed=0, options=opts,
-                           degradations=("wrist", "close", "push"))
+                           degradations=degs, levels={d: [0.01] for d in degs})
     zero = [j for j in calls if j[1] == 0]
     assert len(zero) == 2 and len({j[2] for j in zero}) == 2  # one per sequence
-    assert len(calls) == 2 + 2 * sum(len(V.DEGRADATIONS[d].levels) - 1
-                                     for d in ("wrist", "close", "push"))
+    assert len(calls) == 2 + 2 * len(degs)
     alone = V._job_rows(("push", 0.0, zero[0][2], 0, opts))
     assert {r["degradation"] for r in alone} == {"push"}
     lv0 = df[df["level"] == 0].set_index(["degradation", "metric"])["value"]
     for metric in ("mpjpe", "hold_qs"):
         assert lv0.xs(metric, level="metric").nunique() == 1
-    assert set(lv0.index.get_level_values("degradation")) == {"wrist", "close", "push"}
+    assert set(lv0.index.get_level_values("degradation")) == set(degs)
 
 
 # ------------------------------------------------------------------ each degradation
