@@ -821,7 +821,7 @@ def m_hold_sim_disp(pair: SequencePair, side: str) -> Measured:
 
 _friction_rows("hold_sim", "Articulated hold", 2, "share of tested held frames where "
                + _HOLD_DEF.replace("{g}", "the frame's gravity"),
-               lambda pair, side, mu: _sim_share(pair, side, mu))
+               _sim_share)
 
 
 @metric("hold_sim_axes", "Articulated hold (6 gravity directions)", "%", 1e2, True, "held", 2,
