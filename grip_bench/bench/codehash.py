@@ -98,14 +98,17 @@ class CodeIndex:
         return self._imports[module]
 
     def _tree(self, module: str) -> ast.Module:
+        """``module``'s syntax tree, docstrings removed (a docstring holds no import, so
+        :meth:`imports` reads the same tree)."""
         if module not in self._trees:
-            self._trees[module] = ast.parse(self.files[module].read_bytes())
+            tree = ast.parse(self.files[module].read_bytes())
+            self._trees[module] = _strip_docstrings(tree)
         return self._trees[module]
 
     def code(self, module: str) -> bytes:
         """What of ``module`` counts as code: its syntax tree without docstrings."""
         if module not in self._code:
-            self._code[module] = ast.dump(_without_docstrings(self._tree(module))).encode()
+            self._code[module] = ast.dump(self._tree(module)).encode()
         return self._code[module]
 
     def _known(self, name: str) -> str:
@@ -170,11 +173,9 @@ def _is_type_checking(test: ast.expr) -> bool:
         isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
 
 
-def _without_docstrings(tree: ast.Module) -> ast.Module:
-    """A copy of ``tree`` whose module, class and function docstrings are removed."""
-    import copy
-
-    tree = copy.deepcopy(tree)
+def _strip_docstrings(tree: ast.Module) -> ast.Module:
+    """``tree`` with its module, class and function docstrings removed, in place (a freshly
+    parsed tree: copying it first cost more than parsing and dumping it together)."""
     for node in ast.walk(tree):
         body = getattr(node, "body", None)
         if (isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
