@@ -19,6 +19,7 @@ new samples at every level.
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import zlib
 from collections.abc import Callable, Mapping
@@ -38,6 +39,7 @@ if TYPE_CHECKING:
 
     from ..data.library import ObjectLibrary
     from ..data.sequence import Sequence
+    from ..geometry.distance import DistanceField
     from .evaluate import EvalOptions
 
 # The run's validity unit (bench.stages.validity) and ``grip-bench validity --physics``
@@ -170,6 +172,25 @@ def contact_normals(seq: Sequence, side: str, library: ObjectLibrary
     """
     field = library.field(seq.obj_name)
     _, local = _posed(seq, side, library)
+    # every level of push_in and pull_off asks for the same hand's normals: memoised on the
+    # posed vertices' bytes (all they depend on besides the field)
+    key = (seq.obj_name, hashlib.sha1(np.ascontiguousarray(local).tobytes()).hexdigest())
+    hit = _NORMALS.get(key)
+    if hit is not None and hit[0] is field:
+        return hit[1].copy(), hit[2].copy()
+    w, normal = _contact_normals(field, local)
+    _NORMALS[key] = (field, w, normal)
+    while len(_NORMALS) > _NORMALS_SIZE:
+        _NORMALS.pop(next(iter(_NORMALS)))
+    return w.copy(), normal.copy()
+
+
+_NORMALS: dict[tuple[str, str], tuple] = {}  # contact_normals' memo, oldest first
+_NORMALS_SIZE = 64  # two hands of every sequence of a validity report, with room
+
+
+def _contact_normals(field: DistanceField, local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`contact_normals` of the posed hand ``local`` (T, V, 3), object frame."""
     T, V = local.shape[:2]
     pts = local.reshape(-1, 3)
     sd = np.asarray(field.signed_distance(pts, far="bound"), dtype=np.float64).reshape(T, V)

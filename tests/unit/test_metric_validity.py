@@ -175,6 +175,27 @@ def test_push_and_pull_move_the_contact_region_along_its_normal(data):
                                   mug.lhand["transl"])
 
 
+def test_contact_normals_are_memoised_by_the_posed_hand(data):
+    """A second call for the same hand is the memo's (equal arrays, not the same ones: a
+    caller cannot spoil it); a moved hand is computed afresh, as with an empty memo."""
+    _, lib, seqs = data
+    gt = seqs[1]
+    V._NORMALS.clear()
+    w, n = V.contact_normals(gt, "right", lib)
+    assert len(V._NORMALS) == 1
+    w[:] = -1.0  # a caller writing into its result must not reach the memo
+    w2, n2 = V.contact_normals(gt, "right", lib)
+    assert len(V._NORMALS) == 1 and (w2 >= 0).all()
+    moved = V.push_in(gt, 0.003, lib, 0)  # reads the right hand's entry, adds the left's
+    assert len(V._NORMALS) == 2
+    w3, n3 = V.contact_normals(moved, "right", lib)  # a moved hand: a new entry
+    assert len(V._NORMALS) == 3
+    V._NORMALS.clear()
+    np.testing.assert_array_equal(V.contact_normals(gt, "right", lib)[1], n2)
+    np.testing.assert_array_equal(V.contact_normals(moved, "right", lib)[0], w3)
+    np.testing.assert_array_equal(n, n2)
+
+
 def test_closing_brings_fingertips_to_the_palm_and_opening_away(data):
     _, lib, seqs = data
     gt = seqs[0]
