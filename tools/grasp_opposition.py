@@ -23,7 +23,6 @@ squeeze, so this is also a ceiling on what it can pass. Works on real GRAB with
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -121,18 +120,11 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("data", type=Path, help="a GRAB-layout folder with splits.json")
-    ap.add_argument("--split", default="test", choices=("train", "val", "test"))
-    ap.add_argument("--model-path", default=None, help="MANO / SMPL-X models (real GRAB)")
-    ap.add_argument("--json", action="store_true")
-    args = ap.parse_args(argv)
-    from grip_bench.core.errors import GripBenchError
+    from tools.probe_cli import parse, run
 
-    try:
-        res = probe(args.data, args.split, args.model_path)
-    except GripBenchError as e:  # bad data: one line naming the file, as the CLI does
-        print(f"error: {e.message}", file=sys.stderr)
+    args = parse(__doc__, argv)
+    res = run(lambda: probe(args.data, args.split, args.model_path))
+    if res is None:  # bad data: one line naming the file, already printed
         return 1
     if args.json:
         print(json.dumps(res, indent=2))
@@ -146,4 +138,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     sys.exit(main())

@@ -1,0 +1,32 @@
+"""The command line the data probes of tools/ share: ``DATA [--split] [--model-path] [--json]``,
+and bad data reported as one ``error:`` line naming the file (exit 1), as grip-bench's CLI
+does. A probe imports it inside ``main`` (its ``__main__`` block puts the repository root
+on ``sys.path`` first)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+
+def parse(doc: str, argv: list[str] | None) -> argparse.Namespace:
+    """The probe's arguments; ``doc``'s first paragraph is the description."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("data", type=Path, help="a GRAB-layout folder with splits.json")
+    ap.add_argument("--split", default="test", choices=("train", "val", "test"))
+    ap.add_argument("--model-path", default=None, help="MANO / SMPL-X models (real GRAB)")
+    ap.add_argument("--json", action="store_true")
+    return ap.parse_args(argv)
+
+
+def run(probe: Callable[[], dict]) -> dict | None:
+    """``probe()``'s result, or None after one error line on stderr for bad data."""
+    from grip_bench.core.errors import GripBenchError
+
+    try:
+        return probe()
+    except GripBenchError as e:
+        print(f"error: {e.message}", file=sys.stderr)
+        return None
