@@ -3,8 +3,8 @@
 The physics table's ``hold_sim_axes`` (the share of six axis-aligned gravity directions a
 frame holds) reads higher than ``hold_sim`` (the world's gravity) on the default data. This
 probe says why, on the same frames (``metrics.evaluate.physics_frames``: 8 per sequence and
-hand, drawn with the run's seed) and the same compiled scenes (``metrics.evaluate.hold_scene``,
-every hand the ground truth holds with at that frame): after the shared settle, one hold per
+hand, drawn with the run's seed) and the same runs (``metrics.evaluate._hold_runs``, every
+hand the ground truth holds with at that frame): after the shared settle, one hold per
 direction (the world's, then the six axes), each direction labelled by where it pulls the
 object relative to the holding hand's palm. ``toward`` the palm when the cosine between
 gravity and the direction from the object's centre of mass to the palm centre (the mean of
@@ -51,11 +51,11 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
     from grip_bench.metrics.evaluate import (
         EvalOptions,
         SequencePair,
-        hold_scene,
+        _hold_runs,
         object_pose,
         physics_frames,
     )
-    from grip_bench.metrics.hold import AXES, gravity_along, hold
+    from grip_bench.metrics.hold import AXES, gravity_along
     from grip_bench.metrics.intersection import FailureCounter
     from grip_bench.metrics.physics import _object_inertia
 
@@ -68,16 +68,18 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
         pair = SequencePair(gt, gt, lib, opts, FailureCounter())
         com_local = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)[1]
         for t in sorted({int(t) for s in opts.sides for t in physics_frames(pair, s)}):
-            scene = hold_scene(pair, t)
-            if scene is None:
+            # the table's own runs: one settle, and the axis that is the world's gravity is
+            # the world's run, not a second simulation
+            directions = (None, *AXES)
+            results = _hold_runs(pair, t, C.SIM_FRICTION, directions)
+            if results[0] is None:  # no scene (a hand the test cannot build)
                 continue
             sides = [s for s in opts.sides if pair.held(s)[t]]
             palm = (pair.track("gt", sides[0]).joints[t][PALM_JOINTS].mean(0)
                     if len(sides) == 1 else None)
             R, tr = object_pose(pair, t)
             com = R @ com_local + tr
-            directions = (None, *AXES)
-            for d, res in zip(directions, hold(scene, opts.up, directions), strict=True):
+            for d, res in zip(directions, results, strict=True):
                 rows.append({"sequence": gt.name, "frame": t, "direction": d or "world",
                              "label": label(gravity_along(d, up), com, palm),
                              "held": bool(res.held)})
