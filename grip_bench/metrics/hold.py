@@ -1,10 +1,10 @@
 """The hold test in MuJoCo: does the hand hold the object? (docs/contract.md, "Physics: the
 hold test").
 
-In the physics table as ``hold_sim`` / ``hold_sim_disp`` (``metrics.evaluate``), with the
-design's gates printed under it; on SynthGRAB ground truth it does not pass them yet, so the
-table's verdict is the quasi-static check (docs/physics_hold.md). ``metrics.physics`` keeps
-GRIP's 5-step support test.
+In the physics table as ``hold_sim`` / ``hold_sim_disp`` / ``hold_sim_settle``
+(``metrics.evaluate``), with the design's gates printed under it; on SynthGRAB ground truth
+it does not pass them yet, so the table's verdict is the quasi-static check
+(docs/physics_hold.md). ``metrics.physics`` keeps GRIP's 5-step support test.
 
 Two tests share one scene per frame:
 

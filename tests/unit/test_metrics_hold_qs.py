@@ -262,15 +262,17 @@ FEW = EvalOptions(max_physics_frames=3)
 
 def _hold_sim(pred, gt, lib, failures=None) -> dict[tuple[str, str], float]:
     rows, _ = evaluate_sequence(pred, gt, lib, options=EvalOptions(
-        metrics=("hold_sim", "hold_sim_disp"), max_physics_frames=FEW.max_physics_frames),
+        metrics=("hold_sim", "hold_sim_disp", "hold_sim_settle"),
+        max_physics_frames=FEW.max_physics_frames),
         failures=failures or FailureCounter())
     return {(r.hand, r.metric): r.value for r in rows}
 
 
 def test_hold_sim_is_the_articulated_test_on_the_drawn_frames(fixture):
-    """Metric ``hold_sim`` / ``hold_sim_disp`` against a naive loop over the drawn frames
-    calling ``hold.hand_scene`` / ``hold.hold`` directly (share held; median of the capped
-    displacements); the flat hand at the ground-truth wrist drops the cylinder everywhere."""
+    """Metrics ``hold_sim`` / ``hold_sim_disp`` / ``hold_sim_settle`` against a naive loop
+    over the drawn frames calling ``hold.hand_scene`` / ``hold.hold`` directly (share held;
+    medians of the capped hold and settle displacements); the flat hand at the ground-truth
+    wrist drops the cylinder everywhere."""
     lib, seqs = fixture
     cylinder = seqs[1]
     flat = _flat(cylinder)
@@ -286,6 +288,9 @@ def test_hold_sim_is_the_articulated_test_on_the_drawn_frames(fixture):
             assert got[(side, "hold_sim")] == pytest.approx(100 * np.mean([r.held for r in res]))
             assert got[(side, "hold_sim_disp")] == pytest.approx(1e3 * np.median(  # mm
                 [min(r.displacement, C.HOLD_DISP_CAP) for r in res]))
+            settle = [C.HOLD_DISP_CAP if np.isnan(r.settle) else min(r.settle, C.HOLD_DISP_CAP)
+                      for r in res]
+            assert got[(side, "hold_sim_settle")] == pytest.approx(1e3 * np.median(settle))
     flat_got = _hold_sim(flat, cylinder, lib)
     assert flat_got[("right", "hold_sim")] == 0.0
     assert flat_got[("right", "hold_sim_disp")] > 1e3 * C.HOLD_DISP
