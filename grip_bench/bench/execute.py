@@ -169,8 +169,10 @@ def _init_unit_worker() -> None:
 
     import torch
 
+    from ..core.procs import exit_with_parent
     from ..methods.api import load_all
 
+    exit_with_parent()  # a run killed outright must not leave its workers behind
     torch.set_num_threads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops its workers itself
     load_all()  # a spawned process starts with an empty method registry

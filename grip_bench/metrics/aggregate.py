@@ -167,7 +167,7 @@ _LIBRARY = None
 
 
 def _init_worker(gt_dir: str, mesh_options=None) -> None:
-    """Process-pool initializer: one torch thread and one object library per worker."""
+    """One torch thread and one object library for this process's tasks."""
     import torch
 
     from ..data.library import ObjectLibrary
@@ -175,6 +175,16 @@ def _init_worker(gt_dir: str, mesh_options=None) -> None:
     global _LIBRARY
     torch.set_num_threads(1)
     _LIBRARY = ObjectLibrary(gt_dir, mesh_options)
+
+
+def _init_pool_worker(gt_dir: str, mesh_options=None) -> None:
+    """Process-pool initializer: :func:`_init_worker`, and the worker exits when the process
+    that started it dies (``core.procs``: a kept pool's idle workers would otherwise outlive
+    a run killed outright). Never in the calling process: that one may outlive its shell."""
+    from ..core.procs import exit_with_parent
+
+    exit_with_parent()
+    _init_worker(gt_dir, mesh_options)
 
 
 def run_task(task: Task) -> tuple:
@@ -275,7 +285,7 @@ def worker_pool(workers: int, gt_dir: Path, mesh_options=None) -> ProcessPoolExe
             atexit.register(close_pools)
         close_pools()
         _POOLS[key] = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                                          initializer=_init_worker,
+                                          initializer=_init_pool_worker,
                                           initargs=(str(gt_dir), mesh_options))
     return _POOLS[key]
 
