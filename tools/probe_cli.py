@@ -11,13 +11,17 @@ from collections.abc import Callable
 from pathlib import Path
 
 
-def parse(doc: str, argv: list[str] | None) -> argparse.Namespace:
-    """The probe's arguments; ``doc``'s first paragraph is the description."""
+def parse(doc: str, argv: list[str] | None,
+          extend: Callable[[argparse.ArgumentParser], None] | None = None) -> argparse.Namespace:
+    """The probe's arguments; ``doc``'s first paragraph is the description; ``extend`` adds a
+    probe's own options."""
     ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     ap.add_argument("data", type=Path, help="a GRAB-layout folder with splits.json")
     ap.add_argument("--split", default="test", choices=("train", "val", "test"))
     ap.add_argument("--model-path", default=None, help="MANO / SMPL-X models (real GRAB)")
     ap.add_argument("--json", action="store_true")
+    if extend is not None:
+        extend(ap)
     return ap.parse_args(argv)
 
 
