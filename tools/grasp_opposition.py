@@ -72,25 +72,14 @@ def angle_about(centre: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
 def probe(data_dir: Path, split: str = "test", model_path: str | None = None) -> dict:
     """Per tested held frame: squeeze (bool) and the thumb-index angles; summarised."""
     from grip_bench.core import constants as C
-    from grip_bench.data.grab_io import read_grab
-    from grip_bench.data.library import ObjectLibrary
-    from grip_bench.data.splits import sequences_in_split
-    from grip_bench.metrics.evaluate import (
-        EvalOptions,
-        SequencePair,
-        _bone_ids,
-        physics_frames,
-    )
-    from grip_bench.metrics.intersection import FailureCounter
+    from grip_bench.metrics.evaluate import _bone_ids
     from grip_bench.metrics.physics import _object_inertia
+    from tools.probe_cli import tested_frames
 
-    lib, opts = ObjectLibrary(data_dir), EvalOptions(model_path=model_path)
     squeeze, angles, per_object = [], [], {}
-    for path in sequences_in_split(data_dir, split):
-        gt = read_grab(path)
-        pair = SequencePair(gt, gt, lib, opts, FailureCounter())
+    for pair, frames in tested_frames(data_dir, split, model_path):
+        gt, opts = pair.gt, pair.options
         com = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)[1]
-        frames = sorted({int(t) for s in opts.sides for t in physics_frames(pair, s)})
         for t in frames:
             pushes = []
             for s in opts.sides:

@@ -45,48 +45,32 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
     """Per tested frame and gravity direction: held or not, and the direction's label;
     held shares per label, for the world's gravity and for the six axes."""
     from grip_bench.core import constants as C
-    from grip_bench.data.grab_io import read_grab
-    from grip_bench.data.library import ObjectLibrary
-    from grip_bench.data.splits import sequences_in_split
-    from grip_bench.metrics.evaluate import (
-        EvalOptions,
-        SequencePair,
-        _hold_runs,
-        object_pose,
-        physics_frames,
-    )
+    from grip_bench.metrics.evaluate import _hold_runs, object_pose
     from grip_bench.metrics.hold import AXES, gravity_along
-    from grip_bench.metrics.intersection import FailureCounter
     from grip_bench.metrics.physics import _object_inertia
+    from tools.probe_cli import tested_frames
 
-    lib, opts = ObjectLibrary(data_dir), EvalOptions(model_path=model_path)
-    up = np.asarray(opts.up, np.float64)
     rows = []
-    files = sequences_in_split(data_dir, split)
-    for i, path in enumerate(files):
-        gt = read_grab(path)
-        pair = SequencePair(gt, gt, lib, opts, FailureCounter())
+    for pair, frames in tested_frames(data_dir, split, model_path,
+                                      progress="" if progress else None):
+        up = np.asarray(pair.options.up, np.float64)
         com_local = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)[1]
-        for t in sorted({int(t) for s in opts.sides for t in physics_frames(pair, s)}):
+        for t in frames:
             # the table's own runs: one settle, and the axis that is the world's gravity is
             # the world's run, not a second simulation
             directions = (None, *AXES)
             results = _hold_runs(pair, t, C.SIM_FRICTION, directions)
             if results[0] is None:  # no scene (a hand the test cannot build)
                 continue
-            sides = [s for s in opts.sides if pair.held(s)[t]]
+            sides = [s for s in pair.options.sides if pair.held(s)[t]]
             palm = (pair.track("gt", sides[0]).joints[t][PALM_JOINTS].mean(0)
                     if len(sides) == 1 else None)
             R, tr = object_pose(pair, t)
             com = R @ com_local + tr
             for d, res in zip(directions, results, strict=True):
-                rows.append({"sequence": gt.name, "frame": t, "direction": d or "world",
+                rows.append({"sequence": pair.gt.name, "frame": t, "direction": d or "world",
                              "label": label(gravity_along(d, up), com, palm),
                              "held": bool(res.held)})
-        if progress:
-            print(f"\r{i + 1}/{len(files)} sequences", end="", file=sys.stderr, flush=True)
-    if progress:
-        print(file=sys.stderr)
     return summarise(rows)
 
 

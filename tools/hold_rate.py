@@ -26,29 +26,18 @@ def probe(data_dir: Path, split: str = "test", preds: dict[str, Path] | None = N
           model_path: str | None = None, progress: bool = False) -> dict:
     """``{hands: summary}`` for the ground truth ("gt") and each of ``preds``
     (``{name: prediction folder}``, GRAB layout, the same sequences as ``data_dir``)."""
-    from grip_bench.data.grab_io import read_grab
     from grip_bench.data.library import ObjectLibrary
-    from grip_bench.data.splits import sequences_in_split
-    from grip_bench.metrics.evaluate import (
-        EvalOptions,
-        SequencePair,
-        object_pose,
-        physics_frames,
-        posed_hands,
-    )
+    from grip_bench.metrics.evaluate import object_pose, posed_hands
     from grip_bench.metrics.hold import hand_scene, hold
-    from grip_bench.metrics.intersection import FailureCounter
+    from tools.probe_cli import tested_frames
 
-    lib, opts = ObjectLibrary(data_dir), EvalOptions(model_path=model_path)
-    files = sequences_in_split(data_dir, split)
+    lib = ObjectLibrary(data_dir)  # one for every row: the objects' fields are built once
     out = {}
     for name, folder in [("gt", None), *(preds or {}).items()]:
         tests = []
-        for i, path in enumerate(files):
-            gt = read_grab(path)
-            pred = gt if folder is None else read_grab(Path(folder) / path.relative_to(data_dir))
-            pair = SequencePair(pred, gt, lib, opts, FailureCounter())
-            for t in sorted({int(t) for s in opts.sides for t in physics_frames(pair, s)}):
+        for pair, frames in tested_frames(data_dir, split, model_path, folder, lib,
+                                          progress=f"{name}: " if progress else None):
+            for t in frames:
                 start = time.perf_counter()
                 hands = posed_hands(pair, t)
                 if not hands:
@@ -58,11 +47,6 @@ def probe(data_dir: Path, split: str = "test", preds: dict[str, Path] | None = N
                 res = hold(scene, pair.options.up)[0]
                 tests.append({"scene_s": built - start, "sim_s": time.perf_counter() - built,
                               "held": bool(res.held)})
-            if progress:
-                print(f"\r{name}: {i + 1}/{len(files)} sequences", end="", file=sys.stderr,
-                      flush=True)
-        if progress:
-            print(file=sys.stderr)
         out[name] = summarise(tests)
     return out
 
