@@ -461,21 +461,33 @@ def _chains(parents: tuple[int, ...]) -> list[list[int]]:
 
 
 # ---------------------------------------------------------------- simulation
-def _diverged(model: mujoco.MjModel, data: mujoco.MjData) -> bool:
-    import mujoco
+class _Diverged:
+    """Whether a run of ``model`` has diverged (a non-finite position, the object faster than
+    ``SIM_MAX_SPEED``, or MuJoCo's bad-acceleration warning), tested after every step. The
+    lookups are made once per model: by name at every step they cost about a tenth of one."""
 
-    qv = data.qvel[_object_dofs(model)[:3]]
-    return (not np.isfinite(data.qpos).all() or np.abs(qv).max() > C.SIM_MAX_SPEED
-            or data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0)
+    def __init__(self, model: mujoco.MjModel):
+        import mujoco
+
+        adr = int(model.jnt_dofadr[model.body("object").jntadr[0]])
+        self._linear = slice(adr, adr + 3)
+        self._bad_qacc = int(mujoco.mjtWarning.mjWARN_BADQACC)
+
+    def __call__(self, data: mujoco.MjData) -> bool:
+        return (not np.isfinite(data.qpos).all()
+                or np.abs(data.qvel[self._linear]).max() > C.SIM_MAX_SPEED
+                or data.warning[self._bad_qacc].number > 0)
 
 
-def _step(model: mujoco.MjModel, data: mujoco.MjData, n: int) -> bool:
+def _step(model: mujoco.MjModel, data: mujoco.MjData, n: int,
+          diverged: _Diverged | None = None) -> bool:
     """n steps; False when the run diverged."""
     import mujoco
 
+    diverged = diverged or _Diverged(model)
     for _ in range(n):
         mujoco.mj_step(model, data)
-        if _diverged(model, data):
+        if diverged(data):
             return False
     mujoco.mj_kinematics(model, data)  # mj_step leaves xipos at the pre-integration positions
     return True
@@ -557,9 +569,10 @@ def _hold_steps(model: mujoco.MjModel, data: mujoco.MjData, start: np.ndarray) -
     b = model.body("object").id
     g = model.opt.gravity / max(float(np.linalg.norm(model.opt.gravity)), 1e-12)
     vel = np.zeros(6)
+    diverged = _Diverged(model)
     for k in range(int(round(C.SIM_HOLD_SECONDS / C.SIM_DT))):
         mujoco.mj_step(model, data)
-        if _diverged(model, data):
+        if diverged(data):
             return False
         # contacts, centre of mass and its velocity as mj_step found them, one consistent state
         if (k + 1) % _FALL_CHECK == 0 and data.ncon == 0:
@@ -582,10 +595,11 @@ def _settle(model: mujoco.MjModel, data: mujoco.MjData, targets: np.ndarray) -> 
     dofs = _object_dofs(model)
     saved = model.dof_damping[dofs].copy()
     model.dof_damping[dofs] = np.repeat(C.HOLD_SETTLE_DAMPING, 3)
+    diverged = _Diverged(model)
     try:
         for k in range(n):
             data.ctrl[:] = targets * min(1.0, (k + 1) / ramp)
-            if not _step(model, data, 1):
+            if not _step(model, data, 1, diverged):
                 return False
     finally:
         model.dof_damping[dofs] = saved

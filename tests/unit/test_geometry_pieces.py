@@ -174,3 +174,29 @@ def test_hull_samples_of_many_sets_equal_a_loop_over_each_hull():
                               (0.5 * (tri + tri[:, [1, 2, 0]])).reshape(-1, 3)])
         assert len(mine) == len(h.vertices) + len(tri) + len(tri) * 3 // 2  # Euler: E = 3F/2
         assert {tuple(x) for x in mine} == {tuple(x) for x in ref}
+
+
+def test_scatter_sum_is_np_add_at_bit_for_bit():
+    """The bincount scatter adds each row's terms in np.add.at's order, so the sums (and the
+    normals and pseudonormals built on them) are the same floats, not merely close."""
+    from grip_bench.geometry.pieces import scatter_sum
+
+    rng = np.random.default_rng(3)
+    index = rng.integers(0, 50, 4000)
+    values = rng.normal(size=(4000, 3)) * 10.0 ** rng.integers(-6, 3, (4000, 1))
+    naive = np.zeros((60, 3))
+    np.add.at(naive, index, values)
+    assert np.array_equal(scatter_sum(index, values, 60), naive)
+
+
+def test_edge_ids_equal_a_row_wise_unique():
+    """One integer key per edge orders the edges as ``np.unique(..., axis=0)`` does."""
+    from grip_bench.geometry.pieces import _edge_ids
+
+    mesh = trimesh.creation.icosphere(3)
+    f = np.asarray(mesh.faces, np.int64)
+    edges = np.stack([np.sort(f[:, [(k + 1) % 3, (k + 2) % 3]], axis=1) for k in range(3)],
+                     axis=1).reshape(-1, 2)
+    _, naive = np.unique(edges, axis=0, return_inverse=True)
+    assert np.array_equal(_edge_ids(f, len(mesh.vertices)), naive.reshape(-1))
+    assert _edge_ids(f, len(mesh.vertices)) is _edge_ids(f.copy(), len(mesh.vertices))  # cached
