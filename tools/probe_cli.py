@@ -39,27 +39,8 @@ def run(probe: Callable[[], dict]) -> dict | None:
 def tested_frames(data_dir: Path, split: str = "test", model_path: str | None = None,
                   pred_dir: Path | None = None, library=None, progress: str | None = None
                   ) -> Iterator[tuple[object, list[int]]]:
-    """Per sequence of ``split``: its ``metrics.evaluate.SequencePair`` (the prediction of the
-    same name in ``pred_dir`` against the ground truth; None: the ground truth itself) and its
-    tested held frames, the physics table's (``physics_frames`` of every hand, sorted).
-    ``library``: an ``ObjectLibrary`` of ``data_dir`` to share between calls; ``progress``:
-    a label for a sequence counter on stderr (None: quiet)."""
-    from grip_bench.data.grab_io import read_grab
-    from grip_bench.data.library import ObjectLibrary
-    from grip_bench.data.splits import sequences_in_split
-    from grip_bench.metrics.evaluate import EvalOptions, SequencePair, physics_frames
-    from grip_bench.metrics.intersection import FailureCounter
+    """Per sequence of ``split``: its ``SequencePair`` and its tested held frames, the physics
+    table's (``grip_bench.bench.perf.tested_frames``, which ``grip-bench bench --data`` times)."""
+    from grip_bench.bench.perf import tested_frames as frames
 
-    lib = library if library is not None else ObjectLibrary(data_dir)
-    opts = EvalOptions(model_path=model_path)
-    files = sequences_in_split(data_dir, split)
-    for i, path in enumerate(files):
-        gt = read_grab(path)
-        pred = gt if pred_dir is None else read_grab(Path(pred_dir) / path.relative_to(data_dir))
-        pair = SequencePair(pred, gt, lib, opts, FailureCounter())
-        yield pair, sorted({int(t) for s in opts.sides for t in physics_frames(pair, s)})
-        if progress is not None:
-            print(f"\r{progress}{i + 1}/{len(files)} sequences", end="", file=sys.stderr,
-                  flush=True)
-    if progress is not None:
-        print(file=sys.stderr)
+    return frames(data_dir, split, model_path, pred_dir, library, progress)

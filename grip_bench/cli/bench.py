@@ -41,6 +41,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="samples per measurement, median reported (default 5, --quick 2)")
     p.add_argument("--only", type=_parts, default=None, metavar="PARTS",
                    help="comma-separated subset of floors,grip,sensors,iv,physics (default all)")
+    p.add_argument("--data", type=Path, default=None, metavar="DIR",
+                   help="a GRAB-layout folder (e.g. the default run's data): the physics part "
+                        "also times the articulated hold test on tested frames of its split, "
+                        "the measure of issue #15's goal of 20 tests/s a core")
+    p.add_argument("--split", default="test", choices=("train", "val", "test"),
+                   help="the split of --data to time (default test)")
+    p.add_argument("--model-path", default=None, metavar="DIR",
+                   help="MANO / SMPL-X model folder, for real GRAB data with --data")
     p.set_defaults(func=run)
 
 
@@ -87,7 +95,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("must be at least 1", "--threads")
     if args.repeats is not None and args.repeats < 1:
         raise InputError("must be at least 1", "--repeats")
-    settings = Settings.make(args.quick, args.repeats, args.threads)
+    if args.data is not None and not (args.data / "splits.json").is_file():
+        raise InputError("not a GRAB-layout folder (no splits.json)", str(args.data))
+    settings = Settings.make(args.quick, args.repeats, args.threads,
+                             None if args.data is None else str(args.data), args.split,
+                             args.model_path)
     result = run_bench(settings, args.only or PARTS)
     result["cpu"] = cpu_info().as_dict()
     result["cpu_count"] = os.cpu_count()

@@ -164,3 +164,29 @@ def test_quick_floors_through_the_cli(tmp_path, capsys):
     assert "| floor | value | spread | measured as |" in captured.out
     assert "[bench] floor sgemm fp32" in captured.err
     assert (out / "bench.md").read_text().startswith("# grip-bench bench")
+
+
+def test_data_that_is_not_a_dataset_is_one_line(tmp_path, capsys):
+    """``--data`` without splits.json: one error line naming the folder, exit 1, nothing run."""
+    assert main(["bench", "--only", "physics", "--data", str(tmp_path), "--out",
+                 str(tmp_path / "b")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and str(tmp_path) in err and "splits.json" in err
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.slow  # a scene and a simulated hold per tested frame (~15 s)
+def test_dataset_hold_row_times_the_tested_frames(tmp_path):
+    """The --data row times an even spread of the split's tested frames (all of them when
+    fewer than the quick count), against the issue's goal, and names the data and split."""
+    from grip_bench.data.library import ObjectLibrary
+    from tests.eval_fixtures import grasp_dataset
+
+    data = tmp_path / "data"
+    grasp_dataset(data, T=40)  # a one-handed mug lift, a two-handed cylinder pass
+    n = sum(len(f) for _, f in perf.tested_frames(data, "test", library=ObjectLibrary(data)))
+    settings = perf.Settings.make(quick=True, repeats=1, threads=1, data=str(data))
+    row = perf._dataset_hold(settings, "1 core", lambda s: None)
+    assert 0 < n and f"({min(n, perf.DATA_TESTS_QUICK)} tested frames, 1 core)" in row.stage
+    assert "data test split" in row.stage and row.rate > 0
+    assert row.goal is not None and row.goal.value == 20.0
