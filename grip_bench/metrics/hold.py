@@ -416,7 +416,9 @@ def _tighten(model: mujoco.MjModel, data: mujoco.MjData, hand: PosedHand,
     """Servo targets (45,) rad of one hand: each finger's touching bones (a vertex within
     ``HOLD_TOUCH``) drive their closest vertex ``HOLD_TIGHTEN`` past the object's surface
     along its outward normal (toward the object), the minimum-norm joint motion of that
-    finger's chain. The servo then presses with ``HOLD_FINGER_KP`` times what the surface
+    finger's chain; a vertex that starts inside moves ``HOLD_TIGHTEN`` further in (its
+    depth plus ``HOLD_TIGHTEN`` past the surface: ending exactly ``HOLD_TIGHTEN`` past it
+    changed no verdict on the smoke data, docs/physics_hold.md, s41). The servo then presses with ``HOLD_FINGER_KP`` times what the surface
     leaves unreached, capped at ``HOLD_FINGER_TORQUE``: a squeeze, as a hand holds."""
     import mujoco
 
