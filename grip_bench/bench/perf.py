@@ -870,7 +870,9 @@ def _dataset_hold(settings: Settings, core: str, progress: Progress) -> Row:
                                                           settings.model_path)
               for t in frames]
     if not chosen:
-        raise ValueError(f"{data}: no tested held frames in the {settings.data_split} split")
+        from ..core.errors import InputError
+
+        raise InputError(f"no tested held frames in the {settings.data_split} split", data)
     n = DATA_TESTS_QUICK if settings.quick else DATA_TESTS
     chosen = [chosen[i] for i in np.unique(np.linspace(0, len(chosen) - 1, n).astype(int))]
     for pair, t in chosen:  # warm: tracks, hand model pieces, object pieces

@@ -418,8 +418,9 @@ def _tighten(model: mujoco.MjModel, data: mujoco.MjData, hand: PosedHand,
     along its outward normal (toward the object), the minimum-norm joint motion of that
     finger's chain; a vertex that starts inside moves ``HOLD_TIGHTEN`` further in (its
     depth plus ``HOLD_TIGHTEN`` past the surface: ending exactly ``HOLD_TIGHTEN`` past it
-    changed no verdict on the smoke data, docs/physics_hold.md, s41). The servo then presses with ``HOLD_FINGER_KP`` times what the surface
-    leaves unreached, capped at ``HOLD_FINGER_TORQUE``: a squeeze, as a hand holds."""
+    changed no verdict on the smoke data, docs/physics_hold.md, s41). The servo then
+    presses with ``HOLD_FINGER_KP`` times what the surface leaves unreached, capped at
+    ``HOLD_FINGER_TORQUE``: a squeeze, as a hand holds."""
     import mujoco
 
     targets = np.zeros(45)
