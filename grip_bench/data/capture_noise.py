@@ -440,9 +440,14 @@ _LIBRARIES: dict[str, ObjectLibrary] = {}  # per process: distance fields are bu
 
 
 def _init_worker() -> None:
+    """Pool initializer: one torch thread, and the worker ends with a killed parent rather
+    than idle forever (docs/hostile_inputs.md). Only ever run in a pool's worker."""
     import torch
 
+    from ..core.procs import exit_with_parent
+
     torch.set_num_threads(1)
+    exit_with_parent()
 
 
 def apply_to_dataset(data_dir: str | Path, model: str | CaptureNoise, seed: int,

@@ -151,6 +151,9 @@ def free_port() -> int:
 
 
 def _rank_entry(rank: int, world: int, port: int, fn: Callable, args: tuple, errors: Any) -> None:
+    from ..core.procs import exit_with_parent
+
+    exit_with_parent()  # a rank ends with a killed launcher rather than wait on its peers
     os.environ.update(RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank),
                       MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     try:

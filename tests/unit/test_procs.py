@@ -71,3 +71,46 @@ def test_without_the_watch_the_workers_outlive_it(tmp_path):
     """The control: what the watch is for (a bare pool's workers are still there after three
     of the watch's polling periods)."""
     assert len(_orphans_after_kill("bare", tmp_path, wait=3.0)) == 2
+
+
+def _spawned_children(pid: int) -> list[int]:
+    """PIDs of ``pid``'s multiprocessing spawn children (its pool's workers)."""
+    out = []
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                ppid = int(f.read().split(") ")[-1].split()[1])
+            with open(f"/proc/{d}/cmdline", "rb") as f:
+                cmd = f.read()
+        except (FileNotFoundError, ProcessLookupError, IndexError, ValueError):
+            continue
+        if ppid == pid and b"spawn_main" in cmd:
+            out.append(int(d))
+    return out
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_synthgrab_workers_end_with_a_killed_generator(tmp_path):
+    """The data pools carry the watch too (SynthGRAB here; the counterfactual split, capture
+    noise and DDP ranks start theirs the same way): a generator killed outright while its
+    two workers run leaves none behind."""
+    proc = subprocess.Popen([sys.executable, "-m", "grip_bench", "data", "synth", "--profile",
+                             "tiny", "--workers", "2", "--quiet", "--out", str(tmp_path / "d")],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120.0
+    workers: list[int] = []
+    while time.monotonic() < deadline and len(workers) < 2 and proc.poll() is None:
+        time.sleep(0.1)
+        workers = _spawned_children(proc.pid)
+    assert len(workers) == 2, "the generator's pool never started two workers"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and any(_alive(p) for p in workers):
+        time.sleep(0.2)
+    left = [p for p in workers if _alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert left == []

@@ -431,7 +431,11 @@ def _run_sources(objects: dict[str, ObjectInstance], items: list[SourceItem],
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        from ...core.procs import exit_with_parent
+
+        # a worker ends with a killed parent rather than idle forever (docs/hostile_inputs.md)
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                 initializer=exit_with_parent) as pool:
             futures = {pool.submit(_source_group, objects[name], its, subjects, seed): len(its)
                        for name, its in groups}
             for fut in as_completed(futures):

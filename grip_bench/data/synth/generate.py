@@ -281,7 +281,11 @@ def run_plan(out: Path, seed: int, profile: Profile, items: list[PlanItem],
     else:
         import multiprocessing as mp
 
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        from ...core.procs import exit_with_parent
+
+        # a worker ends with a killed parent rather than idle forever (docs/hostile_inputs.md)
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                 initializer=exit_with_parent) as pool:
             futures = {
                 pool.submit(run_group, str(out), seed, profile.name, fi, its, subjects): len(its)
                 for fi, its in groups
