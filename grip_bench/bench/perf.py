@@ -802,25 +802,31 @@ def _physics(scene: Scene, settings: Settings, progress: Progress) -> list[Row]:
 def _articulated_hold(pair, frames: np.ndarray, settings: Settings, core: str) -> Row:
     """The articulated hold test (``metrics.hold``, the physics table's ``hold_sim``: build the
     scene, its hand pieces bounded on the frame's pose, compile it, 0.2 s settle, 1 s hold
-    under the frame's gravity) on the same ground-truth frames, against the issue's goal of
-    20 tests/s a core. The hand model's and object's pieces are cached per model and mesh
-    (built before timing), as a run would hit them; every scene is built anew."""
+    under the frame's gravity) on the same ground-truth frames (:func:`_hold_row`)."""
+    return _hold_row([(pair, int(t)) for t in frames], settings,
+                     f"physics articulated hold test (settle + 1 s, {core})")
+
+
+def _hold_row(chosen: list[tuple[object, int]], settings: Settings, stage: str) -> Row:
+    """One articulated hold test per (sequence pair, frame) of ``chosen`` a repeat, against
+    the issue's goal of 20 tests/s a core. The sequences' hand tracks, the hand model's pieces
+    and the objects' pieces are built before timing (a run shares them with every other
+    metric); each repeat builds every scene anew."""
     from ..metrics import hold
     from ..metrics.evaluate import object_pose, posed_hands
 
-    hold.object_pieces(pair.mesh)
-    up = pair.options.up
+    for pair, t in chosen:  # warm: tracks, hand model pieces, object pieces
+        posed_hands(pair, t)
+        hold.object_pieces(pair.mesh)
 
     def run() -> None:
-        for t in frames:
-            scene = hold.hand_scene(posed_hands(pair, int(t)), pair.mesh,
-                                    object_pose(pair, int(t)), up)
-            hold.hold(scene, up)
+        for pair, t in chosen:
+            hands = posed_hands(pair, t)
+            scene = hold.hand_scene(hands, pair.mesh, object_pose(pair, t), pair.options.up)
+            hold.hold(scene, pair.options.up)
 
-    posed_hands(pair, int(frames[0]))  # the hand model's pieces, cached from here on
     sample = repeat(run, settings.repeats)
-    return row_from(f"physics articulated hold test (settle + 1 s, {core})",
-                    sample, len(frames), "ms/test", "tests/s",
+    return row_from(stage, sample, len(chosen), "ms/test", "tests/s",
                     goal=Goal("min_rate", 20.0, ">= 20 tests/s/core"))
 
 
@@ -854,16 +860,11 @@ def tested_frames(data_dir: Path, split: str = "test", model_path: str | None = 
 
 
 def _dataset_hold(settings: Settings, core: str, progress: Progress) -> Row:
-    """The articulated hold test (as :func:`_articulated_hold`) on a dataset's ground truth:
+    """The articulated hold test (:func:`_hold_row`) on a dataset's ground truth:
     ``DATA_TESTS`` of the physics table's tested frames of ``settings.data_split`` (16 with
     ``--quick``), spread evenly over all of them. Issue #15 states its goal on the default data,
     where most objects fall and a test stops once they fall free, so this row is the goal's
-    measure. The sequences' hand tracks, the hand model's pieces and the objects' pieces are
-    built before timing (a run shares them with every other metric); each repeat builds every
-    scene anew."""
-    from ..metrics import hold
-    from ..metrics.evaluate import object_pose, posed_hands
-
+    measure."""
     data = Path(settings.data)
     progress(f"reading the {settings.data_split} split of {data}")
     chosen = [(pair, t) for pair, frames in tested_frames(data, settings.data_split,
@@ -875,20 +876,8 @@ def _dataset_hold(settings: Settings, core: str, progress: Progress) -> Row:
         raise InputError(f"no tested held frames in the {settings.data_split} split", data)
     n = DATA_TESTS_QUICK if settings.quick else DATA_TESTS
     chosen = [chosen[i] for i in np.unique(np.linspace(0, len(chosen) - 1, n).astype(int))]
-    for pair, t in chosen:  # warm: tracks, hand model pieces, object pieces
-        posed_hands(pair, t)
-        hold.object_pieces(pair.mesh)
-
-    def run() -> None:
-        for pair, t in chosen:
-            hands = posed_hands(pair, t)
-            scene = hold.hand_scene(hands, pair.mesh, object_pose(pair, t), pair.options.up)
-            hold.hold(scene, pair.options.up)
-
-    sample = repeat(run, settings.repeats)
-    return row_from(f"physics articulated hold test, {data.name} {settings.data_split} "
-                    f"split ({len(chosen)} tested frames, {core})", sample, len(chosen),
-                    "ms/test", "tests/s", goal=Goal("min_rate", 20.0, ">= 20 tests/s/core"))
+    return _hold_row(chosen, settings, f"physics articulated hold test, {data.name} "
+                     f"{settings.data_split} split ({len(chosen)} tested frames, {core})")
 
 
 def measure_stages(settings: Settings, floors: dict[str, Floor], scene: Scene,
