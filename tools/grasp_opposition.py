@@ -15,10 +15,13 @@ every hand the ground truth holds with at that frame, in the object's frame:
   for a pinch across the object, small when both press the same side.
 
 A simulated squeeze (the articulated hold test, ``metrics.hold``) can only hold frames that
-squeeze, so this is also a ceiling on what it can pass. Works on real GRAB with
-``--model-path`` (MANO / SMPL-X models).
+squeeze (without friction to spare), so this is also close to a ceiling on what it can
+pass. ``--hold`` runs that test on every frame too (the world's gravity, mu = 1) and splits
+its verdicts by squeeze, by object mass (``LIGHT_KG``: what a two-pad pinch of the
+procedural hand holds, ``tools/constructed_pinches.py``) and by the number of holding hands.
+Works on real GRAB with ``--model-path`` (MANO / SMPL-X models).
 
-    python tools/grasp_opposition.py DATA [--split test] [--model-path DIR] [--json]
+    python tools/grasp_opposition.py DATA [--split test] [--model-path DIR] [--hold] [--json]
 """
 
 from __future__ import annotations
@@ -30,6 +33,9 @@ from pathlib import Path
 import numpy as np
 
 THUMB_TIP, INDEX_TIP = 16, 17  # HAND_KEYPOINTS: the 16 MANO joints, then the tips
+# kg; the procedural hand's constructed two-pad pinches hold up to 110-160 g and drop
+# 200 g or more under the servos' torque cap (docs/physics_hold.md, "Measured in s42")
+LIGHT_KG = 0.15
 
 
 def squeezes(pushes: np.ndarray) -> bool:
@@ -69,17 +75,19 @@ def angle_about(centre: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
-def probe(data_dir: Path, split: str = "test", model_path: str | None = None) -> dict:
-    """Per tested held frame: squeeze (bool) and the thumb-index angles; summarised."""
+def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
+          hold: bool = False) -> dict:
+    """Per tested held frame: squeeze (bool) and the thumb-index angles; summarised.
+    ``hold``: also the articulated hold test's verdict per frame, in ``held_by_group``."""
     from grip_bench.core import constants as C
     from grip_bench.metrics.evaluate import _bone_ids
     from grip_bench.metrics.physics import _object_inertia
     from tools.probe_cli import tested_frames
 
-    squeeze, angles, per_object = [], [], {}
+    squeeze, angles, per_object, held = [], [], {}, {}
     for pair, frames in tested_frames(data_dir, split, model_path):
         gt, opts = pair.gt, pair.options
-        com = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)[1]
+        mass, com, _ = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)
         for t in frames:
             pushes = []
             for s in opts.sides:
@@ -97,8 +105,14 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None) ->
             ok = squeezes(np.concatenate(pushes)) if pushes else False
             squeeze.append(ok)
             per_object.setdefault(gt.obj_name, []).append(ok)
+            if hold:
+                group = (f"{'squeezes' if ok else 'no squeeze'}, "
+                         f"{'light' if mass <= LIGHT_KG else 'heavy'}, {len(pushes)} hand(s)")
+                held.setdefault(group, []).append(holds(pair, int(t)))
     a = np.asarray(angles)
-    return {"split": split, "frames": len(squeeze),
+    extra = {"held_by_group": {k: {"held": int(np.sum(v)), "frames": len(v)}
+                               for k, v in sorted(held.items())}} if hold else {}
+    return {"split": split, "frames": len(squeeze), **extra,
             "squeeze_share": round(float(np.mean(squeeze)), 4) if squeeze else float("nan"),
             "thumb_index_hands": int(len(a)),
             "thumb_index_angle_median_deg": round(float(np.median(a)), 1) if len(a) else None,
@@ -108,11 +122,27 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None) ->
                                          for k, v in sorted(per_object.items())}}
 
 
+def holds(pair, t: int) -> bool:
+    """The articulated hold test's verdict on the ground truth's frame ``t`` (the world's
+    gravity, mu = 1), as ``hold_sim`` tests it."""
+    from grip_bench.metrics.evaluate import object_pose, posed_hands
+    from grip_bench.metrics.hold import hand_scene, hold
+
+    hands = posed_hands(pair, t)
+    scene = hand_scene(hands, pair.mesh, object_pose(pair, t), pair.options.up)
+    return bool(hold(scene, pair.options.up)[0].held)
+
+
+def _hold_option(ap) -> None:
+    ap.add_argument("--hold", action="store_true",
+                    help="also run the articulated hold test on each frame (~0.5 s a frame)")
+
+
 def main(argv: list[str] | None = None) -> int:
     from tools.probe_cli import parse, run
 
-    args = parse(__doc__, argv)
-    res = run(lambda: probe(args.data, args.split, args.model_path))
+    args = parse(__doc__, argv, _hold_option)
+    res = run(lambda: probe(args.data, args.split, args.model_path, args.hold))
     if res is None:  # bad data: one line naming the file, already printed
         return 1
     if args.json:
@@ -123,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
               f"object's centre, median {res['thumb_index_angle_median_deg']} degrees, "
               f"over 90 in {100 * (res['thumb_index_angle_over_90_share'] or 0):.1f} % of "
               f"{res['thumb_index_hands']} hands touching with both")
+        for group, n in res.get("held_by_group", {}).items():
+            print(f"  held by the articulated test, {group}: {n['held']} of {n['frames']}")
     return 0
 
 

@@ -49,11 +49,18 @@ def test_angle_about_a_centre():
 
 def test_probe_on_the_grasp_fixture(tmp_path):
     grasp_dataset(tmp_path, T=40)  # a one-handed mug lift, a two-handed cylinder pass
-    res = probe(tmp_path)
+    res = probe(tmp_path, hold=True)
     assert res["frames"] > 0 and res["thumb_index_hands"] > 0
     # both hands round the cylinder push against each other; the mug's one hand does not
     assert res["squeeze_share_per_object"] == {"cylindermedium": 1.0, "mug": 0.0}
     assert 0.0 <= res["thumb_index_angle_median_deg"] <= 180.0
+    # --hold: every frame tested once, grouped by squeeze, mass (both light) and hands
+    groups = res["held_by_group"]
+    assert set(groups) == {"squeezes, light, 2 hand(s)", "no squeeze, light, 1 hand(s)"}
+    assert sum(g["frames"] for g in groups.values()) == res["frames"]
+    assert groups["squeezes, light, 2 hand(s)"]["frames"] == round(
+        res["squeeze_share"] * res["frames"])
+    assert all(0 <= g["held"] <= g["frames"] for g in groups.values())
 
 
 @pytest.mark.parametrize("tool", ["grasp_opposition", "synth_leak"])
