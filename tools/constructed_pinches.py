@@ -44,11 +44,10 @@ def pinch_pose(model, aperture: float, starts: int = 2, seed: int = 0) -> tuple[
                       starts=starts, seed=seed)
 
 
-def between_pads(v: np.ndarray, thumb: np.ndarray, index: np.ndarray, shape: str,
-                 gap: float):
+def between_pads(thumb: np.ndarray, index: np.ndarray, shape: str, gap: float):
     """A ``shape`` mesh (world = the hand frame) centred between the pads ``thumb`` and
-    ``index`` (3,), ``gap`` m from each along the line between them; ``v`` (V, 3) the posed
-    hand (its palm normal is the hand frame's -y)."""
+    ``index`` (3,), ``gap`` m from each along the line between them, turned so that a
+    cylinder lies beside the palm (the hand frame's palm normal is -y)."""
     import trimesh
 
     d = float(np.linalg.norm(index - thumb))
@@ -84,7 +83,7 @@ def hold_case(model, local: np.ndarray, shape: str, gap: float, density: float =
     from grip_bench.metrics.hold import AXES, PosedHand, hand_pieces, hand_scene, hold
 
     v, j, _ = model.pose(local)
-    obj = between_pads(v, v[model.thumb_pad], v[model.index_pad], shape, gap)
+    obj = between_pads(v[model.thumb_pad], v[model.index_pad], shape, gap)
     sd = ExactDistance(obj.vertices, obj.faces)(v)
     template = model.hand.template_vertices.detach().double().numpy()
     hand = PosedHand(v, model.faces, j[:16], tuple(model.hand.parents), model.bones,

@@ -31,13 +31,13 @@ def test_the_object_sits_gap_from_both_pads(pinch, shape):
     model, local = pinch
     v, _, _ = model.pose(local)
     thumb, index = v[model.thumb_pad], v[model.index_pad]
-    obj = between_pads(v, thumb, index, shape, 0.0005)
+    obj = between_pads(thumb, index, shape, 0.0005)
     assert obj.is_watertight
     d = ExactDistance(obj.vertices, obj.faces)(np.stack([thumb, index]))
     assert d == pytest.approx([0.0005, 0.0005], abs=1e-4)  # a 64-gon cylinder, a 4x sphere
     assert np.allclose(obj.bounding_box.centroid, 0.5 * (thumb + index), atol=1e-6)
     with pytest.raises(ValueError, match="no object"):
-        between_pads(v, thumb, index, shape, APERTURE)
+        between_pads(thumb, index, shape, APERTURE)
 
 
 @pytest.mark.parametrize("shape", ["sphere", "cylinder"])
