@@ -77,10 +77,12 @@ def hold_case(model, local: np.ndarray, shape: str, gap: float, density: float =
     """The articulated hold test of one constructed pinch (see module docstring): the
     object's mass (g), the hand's deepest vertex (mm, negative inside), how many hand
     vertices are within ``HOLD_TOUCH``, the settle (mm), and per gravity direction (the
-    world's, then ``AXES``) whether it held and how far it moved (mm)."""
+    world's, then ``AXES``) whether it held and how far it moved (mm); beside it the
+    quasi-static check's ``force_ratio`` under the world's gravity (the largest contact
+    force it needs over the weight, inf: cannot hold; it has no force cap)."""
     from grip_bench.core import constants as C
     from grip_bench.geometry.pieces import ExactDistance
-    from grip_bench.metrics.hold import AXES, PosedHand, hand_pieces, hand_scene, hold
+    from grip_bench.metrics.hold import AXES, PosedHand, force_ratio, hand_pieces, hand_scene, hold
 
     v, j, _ = model.pose(local)
     obj = between_pads(v[model.thumb_pad], v[model.index_pad], shape, gap)
@@ -90,7 +92,9 @@ def hold_case(model, local: np.ndarray, shape: str, gap: float, density: float =
                      hand_pieces(template, model.faces, model.bones), sd)
     scene = hand_scene([hand], obj, None, C.UP, density=C.DEFAULT_DENSITY * density)
     res = hold(scene, C.UP, directions=(None, *AXES))
+    ratio = force_ratio([hand], obj, None, C.UP, density=C.DEFAULT_DENSITY * density)
     return {"shape": shape, "gap_mm": 1e3 * gap, "density": density,
+            "force_ratio": ratio,
             "mass_g": 1e3 * obj.volume * C.DEFAULT_DENSITY * density,
             "min_sd_mm": 1e3 * float(sd.min()), "touching": int((sd <= C.HOLD_TOUCH).sum()),
             "settle_mm": 1e3 * res[0].settle,
@@ -125,7 +129,7 @@ def _line(r: dict) -> str:
     return (f"{r['aperture_mm']:5.0f} {r['normals_deg']:6.0f} {r['shape']:>9s} "
             f"{r['gap_mm']:5.1f} {r['mass_g']:8.1f} {r['min_sd_mm']:7.2f} {r['touching']:5d} "
             f"{r['settle_mm']:7.2f} {'held' if r['held']['world'] else 'fell':>5s} "
-            f"{r['disp_mm']['world']:8.1f}  {axes}")
+            f"{r['disp_mm']['world']:8.1f}  {axes}  {r['force_ratio']:6.2f}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -147,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(rows, indent=2))
         return 0
     print("aperture(mm) pads(deg) shape gap(mm) mass(g) deepest(mm) touching settle(mm) "
-          "world disp(mm)  +x-x+y-y+z-z")
+          "world disp(mm)  +x-x+y-y+z-z  qs-ratio")
     for r in rows:
         print(_line(r))
     return 0

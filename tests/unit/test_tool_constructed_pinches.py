@@ -47,6 +47,7 @@ def test_a_pinch_that_squeezes_holds_in_every_direction(pinch, shape):
     assert r["touching"] > 0 and r["min_sd_mm"] > 0.0  # touching, not cut into
     assert all(r["held"].values()), r["held"]  # the world's gravity and the six axes
     assert max(r["disp_mm"].values()) < 1.0
+    assert r["force_ratio"] < 1.0  # the quasi-static check agrees (under the weight)
 
 
 def test_pads_out_of_reach_or_too_weak_drop_it(pinch):
@@ -54,6 +55,8 @@ def test_pads_out_of_reach_or_too_weak_drop_it(pinch):
     off = hold_case(model, local, "sphere", 0.003)  # beyond HOLD_TOUCH: nothing tightens
     assert off["touching"] == 0
     assert not off["held"]["world"] and off["disp_mm"]["world"] > 1e3 * C.HOLD_DISP
+    assert off["force_ratio"] == np.inf  # nothing within reach: the check agrees
     heavy = hold_case(model, local, "sphere", 0.0005, density=64.0)  # ~0.4 kg
     assert heavy["mass_g"] > 300.0
     assert not heavy["held"]["world"] and heavy["disp_mm"]["world"] > 1e3 * C.HOLD_DISP
+    assert heavy["force_ratio"] < 1.0  # the check has no force cap: a pinch holds any weight
