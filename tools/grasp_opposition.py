@@ -20,12 +20,13 @@ every hand the ground truth holds with at that frame, in the object's frame:
   from the object's centre of mass, of each hand touching the object with both: near 180
   for a pinch across the object, small when both press the same side.
 
-A simulated squeeze (the articulated hold test, ``metrics.hold``) can only hold frames that
-squeeze (without friction to spare), so this is also close to a ceiling on what it can
-pass. ``--hold`` runs that test on every frame too (the world's gravity, mu = 1) and splits
-its verdicts by squeeze with friction, by object mass (``LIGHT_KG``: what a two-pad pinch of the
-procedural hand holds, ``tools/constructed_pinches.py``) and by the number of holding hands.
-Works on real GRAB with ``--model-path`` (MANO / SMPL-X models).
+A simulated squeeze (the articulated hold test, ``metrics.hold``) holds almost no frame that
+cannot squeeze with friction (2 % of the default data's, s42), so that share is close to a
+ceiling on what it can pass. ``--hold`` runs the test on every frame too (the world's
+gravity, mu = 1) and splits its verdicts by squeeze with friction, by object mass
+(``LIGHT_KG``: what a two-pad pinch of the procedural hand holds,
+``tools/constructed_pinches.py``) and by the number of holding hands. Works on real GRAB
+with ``--model-path`` (MANO / SMPL-X models).
 
     python tools/grasp_opposition.py DATA [--split test] [--model-path DIR] [--hold] [--json]
 """
@@ -39,8 +40,8 @@ from pathlib import Path
 import numpy as np
 
 THUMB_TIP, INDEX_TIP = 16, 17  # HAND_KEYPOINTS: the 16 MANO joints, then the tips
-# kg; the procedural hand's constructed two-pad pinches hold up to 110-160 g and drop
-# 200 g or more under the servos' torque cap (docs/physics_hold.md, "Measured in s42")
+# kg; the procedural hand's constructed two-pad pinches hold every object up to 195 g and
+# drop every one from 204 g under the servos' torque cap (docs/physics_hold.md, "s42")
 LIGHT_KG = 0.15
 
 
