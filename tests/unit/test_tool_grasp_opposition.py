@@ -97,8 +97,21 @@ def test_angle_about_a_centre():
     assert angle_about(c, c + [1, 0, 0], c + [0, 0, 3]) == pytest.approx(90.0)
 
 
-def test_probe_on_the_grasp_fixture(tmp_path):
+def test_probe_on_the_grasp_fixture(tmp_path, monkeypatch):
+    import tools.grasp_opposition as G
+
     grasp_dataset(tmp_path, T=40)  # a one-handed mug lift, a two-handed cylinder pass
+    # the real verdict on one frame is the metric's own (hold.hand_scene, hold.hold) ...
+    from grip_bench.metrics.evaluate import object_pose, posed_hands
+    from grip_bench.metrics.hold import hand_scene, hold
+    from tools.probe_cli import tested_frames
+
+    pair, frames = next(iter(tested_frames(tmp_path)))
+    t = frames[0]
+    scene = hand_scene(posed_hands(pair, t), pair.mesh, object_pose(pair, t), pair.options.up)
+    assert G.holds(pair, t) is hold(scene, pair.options.up)[0].held
+    # ... and a stand-in that holds even frames keeps the rest to the grouping (~12 s less)
+    monkeypatch.setattr(G, "holds", lambda pair, t: t % 2 == 0)
     res = probe(tmp_path, hold=True)
     assert res["frames"] > 0 and res["thumb_index_hands"] > 0
     # both hands round the cylinder push against each other; the mug's one hand does not
@@ -115,6 +128,7 @@ def test_probe_on_the_grasp_fixture(tmp_path):
     assert groups["squeezes with friction, light, 2 hand(s)"]["frames"] == round(
         res["squeeze_share"] * res["frames"])  # the cylinder's frames
     assert all(0 <= g["held"] <= g["frames"] for g in groups.values())
+    assert 0 < sum(g["held"] for g in groups.values()) < res["frames"]
 
 
 @pytest.mark.parametrize("tool", ["grasp_opposition", "synth_leak"])
