@@ -93,15 +93,14 @@ def hold_case(model, local: np.ndarray, shape: str, gap: float, density: float =
     scene = hand_scene([hand], obj, None, C.UP, density=C.DEFAULT_DENSITY * density)
     res = hold(scene, C.UP, directions=(None, *AXES))
     ratio = force_ratio([hand], obj, None, C.UP, density=C.DEFAULT_DENSITY * density)
+    names = ("world", *AXES)
     return {"shape": shape, "gap_mm": 1e3 * gap, "density": density,
             "force_ratio": ratio,
             "mass_g": 1e3 * obj.volume * C.DEFAULT_DENSITY * density,
             "min_sd_mm": 1e3 * float(sd.min()), "touching": int((sd <= C.HOLD_TOUCH).sum()),
             "settle_mm": 1e3 * res[0].settle,
-            "held": {("world" if d is None else d): bool(r.held)
-                     for d, r in zip((None, *AXES), res, strict=True)},
-            "disp_mm": {("world" if d is None else d): 1e3 * r.displacement
-                        for d, r in zip((None, *AXES), res, strict=True)}}
+            "held": {k: bool(r.held) for k, r in zip(names, res, strict=True)},
+            "disp_mm": {k: 1e3 * r.displacement for k, r in zip(names, res, strict=True)}}
 
 
 def probe(apertures_mm=(20.0, 30.0, 40.0, 50.0), gaps_mm=(0.5, 3.0), densities=(1.0,),

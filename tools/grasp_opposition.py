@@ -170,13 +170,13 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
 
 def holds(pair, t: int) -> bool:
     """The articulated hold test's verdict on the ground truth's frame ``t`` (the world's
-    gravity, mu = 1), as ``hold_sim`` tests it."""
-    from grip_bench.metrics.evaluate import object_pose, posed_hands
-    from grip_bench.metrics.hold import hand_scene, hold
+    gravity, mu = 1), on the scene ``hold_sim`` builds (``metrics.evaluate.hold_scene``; a
+    frame without one is not held)."""
+    from grip_bench.metrics.evaluate import hold_scene
+    from grip_bench.metrics.hold import hold
 
-    hands = posed_hands(pair, t)
-    scene = hand_scene(hands, pair.mesh, object_pose(pair, t), pair.options.up)
-    return bool(hold(scene, pair.options.up)[0].held)
+    scene = hold_scene(pair, t)
+    return scene is not None and bool(hold(scene, pair.options.up)[0].held)
 
 
 def _hold_option(ap) -> None:
