@@ -1,0 +1,35 @@
+"""tools/grasp_oracle.py: the summary's counts, and the oracle attached to SynthGRAB's tiny
+profile (slow): every one-handed search is tested, the generator is restored afterwards
+(docs/physics_hold.md, "Measured in s43")."""
+
+from __future__ import annotations
+
+import pytest
+
+from tools.grasp_oracle import summarise
+
+
+def test_counts_per_kind():
+    rows = [{"kind": "power", "picked_held": False, "top_held": 2},
+            {"kind": "power", "picked_held": True, "top_held": 0},
+            {"kind": "tripod", "picked_held": False, "top_held": 0}]
+    s = summarise(rows)
+    assert (s["n_searches"], s["picked_held"], s["any_held"]) == (3, 1, 2)
+    assert s["per_kind"]["power"] == {"n_searches": 2, "picked_held": 1, "any_held": 2}
+    assert s["per_kind"]["tripod"] == {"n_searches": 1, "picked_held": 0, "any_held": 0}
+
+
+@pytest.mark.slow  # ~15 s: the tiny profile generated with a hold test per candidate
+def test_every_one_handed_search_is_tested_and_the_generator_restored():
+    from grip_bench.data.synth import grasp
+    from tools.grasp_oracle import probe
+
+    before = grasp.GraspSynthesizer._pick
+    res = probe("tiny", seed=0, top=2)
+    assert grasp.GraspSynthesizer._pick is before
+    assert res["n_searches"] == len(res["searches"]) > 0
+    for r in res["searches"]:
+        assert r["kind"] != "bimanual"
+        assert r["top"] == min(2, r["candidates"]) > 0  # a search that picked has a valid one
+        assert 0 <= r["top_held"] <= r["top"]
+    assert res["picked_held"] <= res["any_held"] <= res["n_searches"]
