@@ -54,9 +54,13 @@ def oracle_tests(synth, full, side: str, kind: str, R: np.ndarray, t: np.ndarray
     verdicts = {k: held(k) for k in order}
     if picked not in verdicts:
         verdicts[picked] = held(picked)
+    best = float(np.max(np.where(valid, score, -np.inf)))
     return {"kind": kind, "side": side, "candidates": int(valid.sum()),
             "picked_held": verdicts[picked],
-            "top_held": int(sum(verdicts[k] for k in order)), "top": len(order)}
+            "top_held": int(sum(verdicts[k] for k in order)), "top": len(order),
+            # the recomputation agrees with _pick: its pick is valid here and scores within
+            # _pick's random tie-break (0.3) of the best
+            "picked_valid": bool(valid[picked]), "picked_below_best": best - float(score[picked])}
 
 
 def probe(profile: str = "smoke", seed: int = 0, top: int = 8) -> dict:

@@ -23,14 +23,9 @@ import sys
 from pathlib import Path
 
 
-def held_at(scene, up, scales: tuple[float, ...]) -> list[bool]:
-    """The hold test's verdict on ``scene`` with the object's mass and inertia scaled by
-    each of ``scales`` (the model is restored afterwards)."""
-    return [r.held for r in results_at(scene, up, scales)]
-
-
 def results_at(scene, up, scales: tuple[float, ...]) -> list:
-    """:func:`held_at`'s ``HoldResult`` per scale."""
+    """The hold test's ``HoldResult`` on ``scene`` with the object's mass and inertia scaled
+    by each of ``scales`` (the model is restored afterwards)."""
     import mujoco
 
     from grip_bench.metrics.hold import hold

@@ -32,4 +32,6 @@ def test_every_one_handed_search_is_tested_and_the_generator_restored():
         assert r["kind"] != "bimanual"
         assert r["top"] == min(2, r["candidates"]) > 0  # a search that picked has a valid one
         assert 0 <= r["top_held"] <= r["top"]
+        # the tool's copy of _pick's validity and score agrees with the generator's choice
+        assert r["picked_valid"] and 0.0 <= r["picked_below_best"] <= 0.3
     assert res["picked_held"] <= res["any_held"] <= res["n_searches"]

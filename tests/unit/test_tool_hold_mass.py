@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 
 from grip_bench.core import constants as C
-from tools.hold_mass import _scales, held_at, summarise
+from tools.hold_mass import _scales, results_at, summarise
 
 APERTURE = 0.03  # m
 
@@ -39,7 +39,7 @@ def test_a_lighter_object_is_the_same_test_at_a_lower_density(heavy_pinch):
 
     before = hold(heavy_pinch, C.UP)[0]
     # x1: dropped (tools/constructed_pinches: from ~200 g up); x1/64: the 1x density, held
-    assert held_at(heavy_pinch, C.UP, (1.0, 1.0 / 64.0)) == [False, True]
+    assert [r.held for r in results_at(heavy_pinch, C.UP, (1.0, 1.0 / 64.0))] == [False, True]
     assert hold(heavy_pinch, C.UP)[0] == before  # mass, inertia and constants restored
 
 
