@@ -139,7 +139,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--top", type=int, default=8, help="best valid candidates tested a search")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    res = probe(args.profile, args.seed, args.top)
+    from tools.probe_cli import run
+
+    res = run(lambda: probe(args.profile, args.seed, args.top))
+    if res is None:  # an unknown profile: one line naming it, already printed
+        return 1
     if args.json:
         print(json.dumps(res, indent=2))
         return 0

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from tools.grasp_oracle import summarise
+from tools.grasp_oracle import main, summarise
 
 
 def test_counts_per_kind():
@@ -35,3 +35,9 @@ def test_every_one_handed_search_is_tested_and_the_generator_restored():
         # the tool's copy of _pick's validity and score agrees with the generator's choice
         assert r["picked_valid"] and 0.0 <= r["picked_below_best"] <= 0.3
     assert res["picked_held"] <= res["any_held"] <= res["n_searches"]
+
+
+def test_an_unknown_profile_is_one_error_line(capsys):
+    assert main(["--profile", "nope"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: profile: unknown profile 'nope'") and err.count("\n") == 1
