@@ -132,7 +132,7 @@ def posed_hand(pair, side: str, frame: Frame):
     import torch
 
     from grip_bench.metrics.evaluate import _bone_ids, signed_distances
-    from grip_bench.metrics.hold import PosedHand, hand_pieces
+    from tools.probe_cli import posed_hand as posed
 
     hand, faces = pair.poser.hands[side], pair.poser.faces(side)
     with torch.no_grad():
@@ -140,10 +140,7 @@ def posed_hand(pair, side: str, frame: Frame):
                       for a in (frame.orient, frame.pose.reshape(15, 3), frame.transl)))
     v, j = v[0].numpy(), j[0].numpy()
     sd = signed_distances(pair.field, ((v - frame.t) @ frame.R.T)[None])[0]
-    template = hand.template_vertices.detach().cpu().double().numpy()
-    bones = _bone_ids(pair.poser, side, len(v))
-    return PosedHand(v, faces, j[:16], tuple(hand.parents), bones,
-                     hand_pieces(template, faces, bones), sd)
+    return posed(hand, faces, _bone_ids(pair.poser, side, len(v)), v, j, sd)
 
 
 def probe(data_dir: Path, split: str = "test", model_path: str | None = None,

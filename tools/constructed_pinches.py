@@ -73,6 +73,22 @@ def between_pads(thumb: np.ndarray, index: np.ndarray, shape: str, gap: float):
     return mesh
 
 
+def pinch_scene(model, local: np.ndarray, shape: str, gap: float, density: float = 1.0):
+    """One constructed pinch: the posed hand (``PosedHand``), the object centred between its
+    pads ``gap`` from each, and the articulated hold test's compiled scene at ``density``
+    times the suite's density."""
+    from grip_bench.core import constants as C
+    from grip_bench.geometry.pieces import ExactDistance
+    from grip_bench.metrics.hold import hand_scene
+    from tools.probe_cli import posed_hand
+
+    v, j, _ = model.pose(local)
+    obj = between_pads(v[model.thumb_pad], v[model.index_pad], shape, gap)
+    sd = ExactDistance(obj.vertices, obj.faces)(v)
+    hand = posed_hand(model.hand, model.faces, model.bones, v, j, sd)
+    return hand, obj, hand_scene([hand], obj, None, C.UP, density=C.DEFAULT_DENSITY * density)
+
+
 def hold_case(model, local: np.ndarray, shape: str, gap: float, density: float = 1.0) -> dict:
     """The articulated hold test of one constructed pinch (see module docstring): the
     object's mass (g), the hand's deepest vertex (mm, negative inside), how many hand
@@ -81,16 +97,10 @@ def hold_case(model, local: np.ndarray, shape: str, gap: float, density: float =
     quasi-static check's ``force_ratio`` under the world's gravity (the largest contact
     force it needs over the weight, inf: cannot hold; it has no force cap)."""
     from grip_bench.core import constants as C
-    from grip_bench.geometry.pieces import ExactDistance
-    from grip_bench.metrics.hold import AXES, PosedHand, force_ratio, hand_pieces, hand_scene, hold
+    from grip_bench.metrics.hold import AXES, force_ratio, hold
 
-    v, j, _ = model.pose(local)
-    obj = between_pads(v[model.thumb_pad], v[model.index_pad], shape, gap)
-    sd = ExactDistance(obj.vertices, obj.faces)(v)
-    template = model.hand.template_vertices.detach().double().numpy()
-    hand = PosedHand(v, model.faces, j[:16], tuple(model.hand.parents), model.bones,
-                     hand_pieces(template, model.faces, model.bones), sd)
-    scene = hand_scene([hand], obj, None, C.UP, density=C.DEFAULT_DENSITY * density)
+    hand, obj, scene = pinch_scene(model, local, shape, gap, density)
+    sd = hand.signed_dist
     res = hold(scene, C.UP, directions=(None, *AXES))
     ratio = force_ratio([hand], obj, None, C.UP, density=C.DEFAULT_DENSITY * density)
     names = ("world", *AXES)

@@ -35,19 +35,16 @@ def oracle_tests(synth, full, side: str, kind: str, R: np.ndarray, t: np.ndarray
     of the top held, the pick included when it is among them)."""
     from grip_bench.core import constants as C
     from grip_bench.data.synth.grasp import _pose
-    from grip_bench.metrics.hold import PosedHand, hand_pieces, hand_scene, hold
+    from grip_bench.metrics.hold import hand_scene, hold
+    from tools.probe_cli import posed_hand
 
     order = [int(k) for k in np.argsort(-np.where(valid, score, -np.inf)) if valid[k]][:top]
-    template = full.template_vertices.detach().cpu().double().numpy()
-    faces = np.asarray(full.faces)
-    bones = np.asarray(full.bone_ids)
-    pieces = hand_pieces(template, faces, bones)
+    faces, bones = np.asarray(full.faces), np.asarray(full.bone_ids)
     gravity_up = (0.0, float(up), 0.0)
 
     def held(k: int) -> bool:
         v, j = _pose(full, R[k:k + 1], t[k:k + 1], local[k:k + 1])
-        sd = synth.df.exact_signed_distance(v[0])
-        hand = PosedHand(v[0], faces, j[0][:16], tuple(full.parents), bones, pieces, sd)
+        hand = posed_hand(full, faces, bones, v[0], j[0], synth.df.exact_signed_distance(v[0]))
         scene = hand_scene([hand], synth.mesh, None, gravity_up, C.DEFAULT_DENSITY)
         return bool(hold(scene, gravity_up)[0].held)
 

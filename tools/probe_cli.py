@@ -44,3 +44,15 @@ def tested_frames(data_dir: Path, split: str = "test", model_path: str | None = 
     from grip_bench.bench.perf import tested_frames as frames
 
     return frames(data_dir, split, model_path, pred_dir, library, progress)
+
+
+def posed_hand(hand, faces, bones, vertices, joints, sd):
+    """The articulated hold test's ``PosedHand`` of a hand model (its template and parents,
+    ``faces`` (F, 3), skinning ``bones`` (V,)) posed at ``vertices`` (V, 3) m with
+    ``joints`` (>= 16, 3) m (MANO order first) and signed distances ``sd`` (V,) m to the
+    object: the pieces are the model's, cached by ``metrics.hold.hand_pieces``."""
+    from grip_bench.metrics.hold import PosedHand, hand_pieces
+
+    template = hand.template_vertices.detach().cpu().double().numpy()
+    return PosedHand(vertices, faces, joints[:16], tuple(hand.parents), bones,
+                     hand_pieces(template, faces, bones), sd)

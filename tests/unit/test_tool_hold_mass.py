@@ -17,20 +17,12 @@ APERTURE = 0.03  # m
 def heavy_pinch():
     """The 30 mm constructed pinch's scene around a sphere 0.5 mm from both pads, at 64 times
     the suite's density (~0.4 kg: beyond what the capped servos carry)."""
-    from grip_bench.geometry.pieces import ExactDistance
-    from grip_bench.metrics.hold import PosedHand, hand_pieces, hand_scene
-    from tools.constructed_pinches import between_pads, pinch_pose
+    from tools.constructed_pinches import pinch_pose, pinch_scene
     from tools.pinch_opposition import PinchModel
 
     model = PinchModel()
     local, _ = pinch_pose(model, APERTURE, starts=1, seed=0)
-    v, j, _ = model.pose(local)
-    obj = between_pads(v[model.thumb_pad], v[model.index_pad], "sphere", 0.0005)
-    template = model.hand.template_vertices.detach().double().numpy()
-    hand = PosedHand(v, model.faces, j[:16], tuple(model.hand.parents), model.bones,
-                     hand_pieces(template, model.faces, model.bones),
-                     ExactDistance(obj.vertices, obj.faces)(v))
-    return hand_scene([hand], obj, None, C.UP, density=64.0 * C.DEFAULT_DENSITY)
+    return pinch_scene(model, local, "sphere", 0.0005, density=64.0)[2]
 
 
 @pytest.mark.slow  # ~20 s: the pinch's pose solve, its pieces and three held seconds
