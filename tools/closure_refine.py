@@ -53,17 +53,10 @@ class Frame:
 def closure_energy(points, normals, com, radius: float):
     """``E_fc`` of contacts ``points`` (K, 3) m with unit inward ``normals`` (K, 3) about
     ``com`` (3,), torques over ``radius`` m (torch or numpy, differentiable in torch)."""
-    lib = _lib(points)
-    force = normals.sum(0)
-    torque = lib.cross(points - com, normals, **({"dim": 1} if lib.__name__ == "torch"
-                                                  else {"axis": 1})).sum(0) / radius
-    return (force ** 2).sum() + (torque ** 2).sum()
-
-
-def _lib(x):
-    import torch
-
-    return torch if isinstance(x, torch.Tensor) else np
+    r = points - com
+    i, j = [1, 2, 0], [2, 0, 1]  # the cross product by index, the same in numpy and torch
+    torque = (r[:, i] * normals[:, j] - r[:, j] * normals[:, i]).sum(0) / radius
+    return (normals.sum(0) ** 2).sum() + (torque ** 2).sum()
 
 
 def contacts(bones: np.ndarray, sd: np.ndarray) -> list[int]:
@@ -148,7 +141,7 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
     """Per tested frame (the first ``first`` of each sequence; None: all), the hold test's
     verdict on the original and the refined hands, and the energies; summarised."""
     from grip_bench.core import constants as C
-    from grip_bench.metrics.evaluate import object_pose
+    from grip_bench.metrics.evaluate import hold_scene, object_pose
     from grip_bench.metrics.hold import hand_scene, hold
     from grip_bench.metrics.physics import _object_inertia
     from tools.probe_cli import tested_frames
@@ -160,21 +153,22 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
         R_all, t_all = pair.gt.object_rotations(), np.asarray(pair.gt.object["transl"], float)
         for t in frames[:first]:
             sides = [s for s in pair.options.sides if pair.held(s)[t]]
-            before, after, energies = [], [], []
+            after, energies = [], []
             for s in sides:
                 p = pair.gt.hand_params(s)
                 f = Frame(*(np.asarray(p[k][t], float) for k in
                             ("global_orient", "hand_pose", "transl")), R_all[t], t_all[t])
                 done = refine(pair.poser.hands[s], f, pair.field, com, radius, reg, steps)
-                before.append(posed_hand(pair, s, f))
                 after.append(posed_hand(pair, s, f if done is None else done[0]))
                 energies.append(None if done is None else done[1])
-            verdicts = [hold(hand_scene(h, pair.mesh, object_pose(pair, t), pair.options.up),
-                             pair.options.up)[0] for h in (before, after)]
+            before = hold_scene(pair, int(t))  # the run's own scene of the written hands
+            refined = hold(hand_scene(after, pair.mesh, object_pose(pair, t), pair.options.up),
+                           pair.options.up)[0]
             rows.append({"object": pair.gt.obj_name, "frame": int(t), "hands": len(sides),
-                         "held_before": bool(verdicts[0].held),
-                         "held_after": bool(verdicts[1].held),
-                         "settle_after_mm": 1e3 * verdicts[1].settle, "energies": energies})
+                         "held_before": before is not None
+                         and bool(hold(before, pair.options.up)[0].held),
+                         "held_after": bool(refined.held),
+                         "settle_after_mm": 1e3 * refined.settle, "energies": energies})
     return {"split": split, "frames": len(rows), **summarise(rows), "rows": rows}
 
 
