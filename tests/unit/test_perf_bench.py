@@ -175,18 +175,22 @@ def test_data_that_is_not_a_dataset_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "b").exists()
 
 
-@pytest.mark.slow  # a scene and a simulated hold per tested frame (~15 s)
-def test_dataset_hold_row_times_the_tested_frames(tmp_path):
+@pytest.mark.slow  # a scene and nine simulated holds per tested frame (~40 s)
+def test_dataset_hold_row_times_the_tested_frames(tmp_path, monkeypatch):
     """The --data row times an even spread of the split's tested frames (all of them when
     fewer than the quick count), against the issue's goal, and names the data and split."""
     from grip_bench.data.library import ObjectLibrary
     from tests.eval_fixtures import grasp_dataset
 
+    monkeypatch.setattr(perf, "DATA_TESTS_QUICK", 6)  # frames enough to spread, fewer holds
     data = tmp_path / "data"
     grasp_dataset(data, T=40)  # a one-handed mug lift, a two-handed cylinder pass
     n = sum(len(f) for _, f in perf.tested_frames(data, "test", library=ObjectLibrary(data)))
     settings = perf.Settings.make(quick=True, repeats=1, threads=1, data=str(data))
-    row = perf._dataset_hold(settings, "1 core", lambda s: None)
+    row, as_run = perf._dataset_hold(settings, "1 core", lambda s: None)
     assert 0 < n and f"({min(n, perf.DATA_TESTS_QUICK)} tested frames, 1 core)" in row.stage
     assert "data test split" in row.stage and row.rate > 0
     assert row.goal is not None and row.goal.value == 20.0
+    # the run's eight tests a scene share its build: more tests a second, no goal of its own
+    assert "as a run computes them (8 a scene)" in as_run.stage and as_run.goal is None
+    assert as_run.rate > row.rate
