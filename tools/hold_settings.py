@@ -1,0 +1,145 @@
+"""How much do the hold test's verdicts depend on its settings? The articulated test under
+alternative MuJoCo options and tightenings, on a dataset's tested frames.
+
+The articulated hold test (``metrics.hold``) fixes MuJoCo's solver options and the squeeze
+(``HOLD_TIGHTEN``, 1.5 mm; the design allows 1-2 mm). This probe runs the test as the run
+builds it (``metrics.evaluate.hold_scene``, the world's gravity, mu = 1) on every
+``--every``-th tested frame of a split (``bench.perf.tested_frames``) once as committed and
+once per variant, and reports the held share, how many verdicts differ from the committed
+ones and the simulation's milliseconds a test. Variants (``VARIANTS``): MuJoCo's two
+remedies for soft-friction creep (``impratio`` 100, 10 noslip iterations), cheaper
+collision and solver settings (the speed levers: ``ccd_iterations`` 10, ``ccd_tolerance``
+1e-4, the solver's ``tolerance`` 1e-6) and the design's two ends of the tightening (1 and
+2 mm; the scene is rebuilt, its time not counted). A diagnostic for docs/physics_hold.md
+("Measured in s44"): nothing here changes the test.
+
+    python tools/hold_settings.py DATA [--split test] [--every 4] [--variants a,b] [--json]
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+# name -> MuJoCo ``model.opt`` fields to set, or the tightening (m) to build the scene with
+VARIANTS: dict[str, dict] = {
+    "impratio 100": {"opt": {"impratio": 100.0}},
+    "noslip 10": {"opt": {"noslip_iterations": 10}},
+    "ccd_iterations 10": {"opt": {"ccd_iterations": 10}},
+    "ccd_tolerance 1e-4": {"opt": {"ccd_tolerance": 1e-4}},
+    "solver tolerance 1e-6": {"opt": {"tolerance": 1e-6}},
+    "tighten 1 mm": {"tighten": 0.001},
+    "tighten 2 mm": {"tighten": 0.002},
+}
+
+
+@contextmanager
+def options(model, opt: dict):
+    """``model.opt`` with the fields of ``opt`` set, restored afterwards."""
+    saved = {k: getattr(model.opt, k) for k in opt}
+    try:
+        for k, v in opt.items():
+            setattr(model.opt, k, v)
+        yield model
+    finally:
+        for k, v in saved.items():
+            setattr(model.opt, k, v)
+
+
+@contextmanager
+def tightening(metres: float):
+    """``constants.HOLD_TIGHTEN`` set to ``metres`` while scenes are built, restored after."""
+    from grip_bench.core import constants as C
+
+    saved = C.HOLD_TIGHTEN
+    C.HOLD_TIGHTEN = metres
+    try:
+        yield
+    finally:
+        C.HOLD_TIGHTEN = saved
+
+
+def run_variant(pair, t: int, committed, variant: dict):
+    """(held, simulation seconds) of one frame under ``variant`` (None: as committed)."""
+    from grip_bench.metrics.evaluate import object_pose, posed_hands
+    from grip_bench.metrics.hold import hand_scene, hold
+
+    up = pair.options.up
+    scene = committed
+    if variant and "tighten" in variant:
+        with tightening(variant["tighten"]):
+            scene = hand_scene(posed_hands(pair, t), pair.mesh, object_pose(pair, t), up)
+    with options(scene.model, (variant or {}).get("opt", {})):
+        start = time.perf_counter()
+        res = hold(scene, up)[0]
+        return bool(res.held), time.perf_counter() - start
+
+
+def summarise(committed: list[bool], rows: dict[str, list[tuple[bool, float]]]) -> dict:
+    """Per variant: frames, held share (%), verdicts that differ from ``committed`` and the
+    mean simulation milliseconds a test."""
+    out = {}
+    for name, r in rows.items():
+        n = len(r)
+        out[name] = {"frames": n,
+                     "held_pct": round(100.0 * sum(h for h, _ in r) / n, 1) if n else None,
+                     "differ": sum(h != c for (h, _), c in zip(r, committed, strict=True)),
+                     "sim_ms": round(1e3 * sum(s for _, s in r) / n, 1) if n else None}
+    return out
+
+
+def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
+          every: int = 4, names: tuple[str, ...] = tuple(VARIANTS)) -> dict:
+    from grip_bench.metrics.evaluate import hold_scene
+    from tools.probe_cli import tested_frames
+
+    frames = [(pair, int(t)) for pair, ts in tested_frames(data_dir, split, model_path)
+              for t in ts][::every]
+    rows: dict[str, list[tuple[bool, float]]] = {n: [] for n in ("committed", *names)}
+    for pair, t in frames:
+        scene = hold_scene(pair, t)
+        if scene is None:
+            continue
+        for n in rows:
+            rows[n].append(run_variant(pair, t, scene, VARIANTS.get(n)))
+    committed = [h for h, _ in rows["committed"]]
+    return {"split": split, "every": every, **summarise(committed, rows)}
+
+
+def _names(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown:
+        raise ValueError(f"unknown variant(s) {unknown}; choose from {sorted(VARIANTS)}")
+    return names
+
+
+def main(argv: list[str] | None = None) -> int:
+    from tools.probe_cli import parse, run
+
+    def extend(ap) -> None:
+        ap.add_argument("--every", type=int, default=4, help="every N-th tested frame")
+        ap.add_argument("--variants", type=_names, default=tuple(VARIANTS),
+                        help="comma-separated names of VARIANTS (default: all)")
+
+    args = parse(__doc__, argv, extend)
+    res = run(lambda: probe(args.data, args.split, args.model_path, args.every,
+                            args.variants))
+    if res is None:
+        return 1
+    if args.json:
+        print(json.dumps(res, indent=2))
+        return 0
+    for name, r in res.items():
+        if isinstance(r, dict):
+            print(f"{name}: held {r['held_pct']} % of {r['frames']} frames, {r['differ']} "
+                  f"verdicts differ from the committed test, {r['sim_ms']} ms a simulation")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    sys.exit(main())
