@@ -29,10 +29,12 @@ import numpy as np
 
 def oracle_tests(synth, full, side: str, kind: str, R: np.ndarray, t: np.ndarray,
                  local: np.ndarray, valid: np.ndarray, score: np.ndarray, picked: int,
-                 up: float, top: int) -> dict:
+                 up: float, top: int, qs: np.ndarray | None = None) -> dict:
     """The hold test on the picked candidate (index ``picked``) and on the ``top``
     best-scoring valid ones of one search: ``{"kind", "picked_held", "top_held"}`` (how many
-    of the top held, the pick included when it is among them)."""
+    of the top held, the pick included when it is among them). ``qs`` (C,) bool: which
+    candidates pass the quasi-static check the score rewards (``_holds``); with it, the
+    counts of valid candidates that pass it and of the tested ones that pass it and hold."""
     from grip_bench.core import constants as C
     from grip_bench.data.synth.grasp import _pose
     from grip_bench.metrics.hold import hand_scene, hold
@@ -52,7 +54,11 @@ def oracle_tests(synth, full, side: str, kind: str, R: np.ndarray, t: np.ndarray
     if picked not in verdicts:
         verdicts[picked] = held(picked)
     best = float(np.max(np.where(valid, score, -np.inf)))
-    return {"kind": kind, "side": side, "candidates": int(valid.sum()),
+    extra = {} if qs is None else {
+        "candidates_qs": int((valid & qs).sum()),
+        "top_qs": int(sum(bool(qs[k]) for k in order)),
+        "top_qs_held": int(sum(bool(qs[k]) and verdicts[k] for k in order))}
+    return {"kind": kind, "side": side, "candidates": int(valid.sum()), **extra,
             "picked_held": verdicts[picked],
             "top_held": int(sum(verdicts[k] for k in order)), "top": len(order),
             # the recomputation agrees with _pick: its pick is valid here and scores within
@@ -73,12 +79,12 @@ def probe(profile: str = "smoke", seed: int = 0, top: int = 8) -> dict:
         chosen = original(self, full, side, kind, R, t, local, local0, rolls, rng,
                           above_table, avoid, up)
         if chosen is not None and kind != "bimanual":
-            valid, score = _valid_and_score(self, full, kind, R, t, local, rolls,
-                                            above_table, avoid, up)
+            valid, score, qs = _valid_and_score(self, full, kind, R, t, local, rolls,
+                                                above_table, avoid, up)
             picked = int(np.argmin(np.abs(R - chosen.R).sum((1, 2))
                                    + np.abs(t - chosen.t).sum(1)))
             searches.append(oracle_tests(self, full, side, kind, R, t, local, valid, score,
-                                         picked, up, top))
+                                         picked, up, top, qs))
         return chosen
 
     grasp.GraspSynthesizer._pick = pick
@@ -91,10 +97,11 @@ def probe(profile: str = "smoke", seed: int = 0, top: int = 8) -> dict:
 
 
 def _valid_and_score(self, full, kind, R, t, local, rolls, above_table, avoid, up
-                     ) -> tuple[np.ndarray, np.ndarray]:
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``_pick``'s validity mask and score (its random tie-break aside; the closing and
     opening clearance it checks on the way is not redone), recomputed: the candidates it
-    would accept and their order."""
+    would accept and their order; and which valid ones pass the quasi-static check its
+    score rewards (``HOLD_SCORE``)."""
     from grip_bench.data.synth import grasp as g
 
     v, _ = g._pose(full, R, t, local)
@@ -113,16 +120,22 @@ def _valid_and_score(self, full, kind, R, t, local, rolls, above_table, avoid, u
         else np.ones(len(R), bool)
     valid = holds & clear & (pen <= g.MAX_PENETRATION) & g._clear_of(v, avoid)
     score = near @ g.PART_SCORE - 2.0 * rolls - 200.0 * pen
+    qs = np.zeros(len(R), bool)
     for k in np.flatnonzero(valid):
-        score[k] += g.HOLD_SCORE * self._holds(v[k], sd[k], up)
-    return valid, score
+        qs[k] = self._holds(v[k], sd[k], up)
+        score[k] += g.HOLD_SCORE * qs[k]
+    return valid, score, qs
 
 
 def summarise(searches: list[dict]) -> dict:
     """Counts over the searches, overall and per grasp kind."""
     def count(rows: list[dict]) -> dict:
-        return {"n_searches": len(rows), "picked_held": sum(r["picked_held"] for r in rows),
-                "any_held": sum(r["picked_held"] or r["top_held"] > 0 for r in rows)}
+        out = {"n_searches": len(rows), "picked_held": sum(r["picked_held"] for r in rows),
+               "any_held": sum(r["picked_held"] or r["top_held"] > 0 for r in rows)}
+        if rows and all("candidates_qs" in r for r in rows):  # the quasi-static check's share
+            out.update({k: sum(r[k] for r in rows) for k in (
+                "candidates", "candidates_qs", "top", "top_held", "top_qs", "top_qs_held")})
+        return out
 
     kinds = sorted({r["kind"] for r in searches})
     return {**count(searches), "per_kind": {k: count([r for r in searches if r["kind"] == k])
@@ -147,6 +160,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"SynthGRAB {args.profile} (seed {args.seed}), {res['n_searches']} one-handed searches: "
           f"the pick holds in {res['picked_held']}, the pick or one of the {args.top} best "
           f"valid candidates in {res['any_held']}")
+    if "candidates_qs" in res:
+        print(f"  the quasi-static check passes {res['candidates_qs']} of {res['candidates']} "
+              f"valid candidates; of the {res['top']} tested, {res['top_qs']} pass it, "
+              f"{res['top_qs_held']} of those and {res['top_held'] - res['top_qs_held']} of "
+              "the rest hold in the articulated test")
     for k, r in res["per_kind"].items():
         print(f"  {k}: {r['n_searches']} searches, pick holds {r['picked_held']}, "
               f"the pick or one of the top {r['any_held']}")

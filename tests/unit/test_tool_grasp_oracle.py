@@ -17,6 +17,17 @@ def test_counts_per_kind():
     assert (s["n_searches"], s["picked_held"], s["any_held"]) == (3, 1, 2)
     assert s["per_kind"]["power"] == {"n_searches": 2, "picked_held": 1, "any_held": 2}
     assert s["per_kind"]["tripod"] == {"n_searches": 1, "picked_held": 0, "any_held": 0}
+    assert "candidates_qs" not in s  # rows without the quasi-static counts
+
+
+def test_quasi_static_counts_add_up():
+    keys = ("candidates", "candidates_qs", "top", "top_held", "top_qs", "top_qs_held")
+    power, tripod = (10, 9, 8, 2, 7, 2), (3, 3, 3, 1, 3, 1)
+    rows = [{"kind": "power", "picked_held": False, **dict(zip(keys, power, strict=True))},
+            {"kind": "tripod", "picked_held": True, **dict(zip(keys, tripod, strict=True))}]
+    s = summarise(rows)
+    assert [s[k] for k in keys] == [13, 12, 11, 3, 10, 3]
+    assert s["per_kind"]["tripod"]["candidates_qs"] == 3
 
 
 @pytest.mark.slow  # ~15 s: the tiny profile generated with a hold test per candidate
@@ -32,6 +43,8 @@ def test_every_one_handed_search_is_tested_and_the_generator_restored():
         assert r["kind"] != "bimanual"
         assert r["top"] == min(2, r["candidates"]) > 0  # a search that picked has a valid one
         assert 0 <= r["top_held"] <= r["top"]
+        assert r["candidates_qs"] <= r["candidates"]
+        assert r["top_qs_held"] <= r["top_qs"] <= r["top"]
         # the tool's copy of _pick's validity and score agrees with the generator's choice
         assert r["picked_valid"] and 0.0 <= r["picked_below_best"] <= 0.3
     assert res["picked_held"] <= res["any_held"] <= res["n_searches"]
