@@ -34,7 +34,9 @@ def oracle_tests(synth, full, side: str, kind: str, R: np.ndarray, t: np.ndarray
     best-scoring valid ones of one search: ``{"kind", "picked_held", "top_held"}`` (how many
     of the top held, the pick included when it is among them). ``qs`` (C,) bool: which
     candidates pass the quasi-static check the score rewards (``_holds``); with it, the
-    counts of valid candidates that pass it and of the tested ones that pass it and hold."""
+    counts of valid candidates that pass it and of the tested ones that pass it and hold,
+    and the same for s42's squeeze with friction (``tools.grasp_opposition``: the touching
+    bones and the palm can press the object with cancelling forces inside their cones)."""
     from grip_bench.core import constants as C
     from grip_bench.data.synth.grasp import _pose
     from grip_bench.metrics.hold import hand_scene, hold
@@ -54,16 +56,33 @@ def oracle_tests(synth, full, side: str, kind: str, R: np.ndarray, t: np.ndarray
     if picked not in verdicts:
         verdicts[picked] = held(picked)
     best = float(np.max(np.where(valid, score, -np.inf)))
-    extra = {} if qs is None else {
-        "candidates_qs": int((valid & qs).sum()),
-        "top_qs": int(sum(bool(qs[k]) for k in order)),
-        "top_qs_held": int(sum(bool(qs[k]) and verdicts[k] for k in order))}
+    extra = {}
+    if qs is not None:
+        sq = {k: _squeezes(synth, full, R[k], t[k], local[k]) for k in order}
+        extra = {"candidates_qs": int((valid & qs).sum()),
+                 "top_qs": int(sum(bool(qs[k]) for k in order)),
+                 "top_qs_held": int(sum(bool(qs[k]) and verdicts[k] for k in order)),
+                 "top_sq": int(sum(sq.values())),
+                 "top_sq_held": int(sum(sq[k] and verdicts[k] for k in order))}
     return {"kind": kind, "side": side, "candidates": int(valid.sum()), **extra,
             "picked_held": verdicts[picked],
             "top_held": int(sum(verdicts[k] for k in order)), "top": len(order),
             # the recomputation agrees with _pick: its pick is valid here and scores within
             # _pick's random tie-break (0.3) of the best
             "picked_valid": bool(valid[picked]), "picked_below_best": best - float(score[picked])}
+
+
+def _squeezes(synth, full, R: np.ndarray, t: np.ndarray, local: np.ndarray) -> bool:
+    """s42's squeeze with friction (``tools.grasp_opposition``) of one candidate hand, in the
+    object's frame: its touching bones and palm at mu = ``SIM_FRICTION``."""
+    from grip_bench.core import constants as C
+    from grip_bench.data.synth.grasp import _pose
+    from tools.grasp_opposition import bone_contacts, squeezes_with_friction
+
+    v = _pose(full, R[None], t[None], local[None])[0][0]
+    points, pushes = bone_contacts(synth.df, v, synth.df.exact_signed_distance(v),
+                                   np.asarray(full.bone_ids), C.HOLD_TOUCH, palm=True)
+    return squeezes_with_friction(points, pushes, synth._com, C.SIM_FRICTION)
 
 
 def probe(profile: str = "smoke", seed: int = 0, top: int = 8) -> dict:
@@ -134,7 +153,8 @@ def summarise(searches: list[dict]) -> dict:
                "any_held": sum(r["picked_held"] or r["top_held"] > 0 for r in rows)}
         if rows and all("candidates_qs" in r for r in rows):  # the quasi-static check's share
             out.update({k: sum(r[k] for r in rows) for k in (
-                "candidates", "candidates_qs", "top", "top_held", "top_qs", "top_qs_held")})
+                "candidates", "candidates_qs", "top", "top_held", "top_qs", "top_qs_held",
+                "top_sq", "top_sq_held")})
         return out
 
     kinds = sorted({r["kind"] for r in searches})
@@ -164,7 +184,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  the quasi-static check passes {res['candidates_qs']} of {res['candidates']} "
               f"valid candidates; of the {res['top']} tested, {res['top_qs']} pass it, "
               f"{res['top_qs_held']} of those and {res['top_held'] - res['top_qs_held']} of "
-              "the rest hold in the articulated test")
+              "the rest hold in the articulated test; the squeeze with friction passes "
+              f"{res['top_sq']} of the tested, {res['top_sq_held']} of which hold")
     for k, r in res["per_kind"].items():
         print(f"  {k}: {r['n_searches']} searches, pick holds {r['picked_held']}, "
               f"the pick or one of the top {r['any_held']}")

@@ -21,12 +21,13 @@ def test_counts_per_kind():
 
 
 def test_quasi_static_counts_add_up():
-    keys = ("candidates", "candidates_qs", "top", "top_held", "top_qs", "top_qs_held")
-    power, tripod = (10, 9, 8, 2, 7, 2), (3, 3, 3, 1, 3, 1)
+    keys = ("candidates", "candidates_qs", "top", "top_held", "top_qs", "top_qs_held",
+            "top_sq", "top_sq_held")
+    power, tripod = (10, 9, 8, 2, 7, 2, 3, 1), (3, 3, 3, 1, 3, 1, 1, 1)
     rows = [{"kind": "power", "picked_held": False, **dict(zip(keys, power, strict=True))},
             {"kind": "tripod", "picked_held": True, **dict(zip(keys, tripod, strict=True))}]
     s = summarise(rows)
-    assert [s[k] for k in keys] == [13, 12, 11, 3, 10, 3]
+    assert [s[k] for k in keys] == [13, 12, 11, 3, 10, 3, 4, 2]
     assert s["per_kind"]["tripod"]["candidates_qs"] == 3
 
 
@@ -45,6 +46,7 @@ def test_every_one_handed_search_is_tested_and_the_generator_restored():
         assert 0 <= r["top_held"] <= r["top"]
         assert r["candidates_qs"] <= r["candidates"]
         assert r["top_qs_held"] <= r["top_qs"] <= r["top"]
+        assert r["top_sq_held"] <= min(r["top_sq"], r["top_held"])
         # the tool's copy of _pick's validity and score agrees with the generator's choice
         assert r["picked_valid"] and 0.0 <= r["picked_below_best"] <= 0.3
     assert res["picked_held"] <= res["any_held"] <= res["n_searches"]
