@@ -95,11 +95,12 @@ def _full_hold(model, data, p0, q0, gravity) -> list[Check]:
     obj = H._object_dofs(model)
     hand = np.setdiff1d(np.arange(model.nv), obj)
     diverged, vel, out = H._Diverged(model), np.zeros(6), []
-    for k in range(int(round(C.SIM_HOLD_SECONDS / C.SIM_DT))):
+    steps = int(round(C.SIM_HOLD_SECONDS / C.SIM_DT))
+    for k in range(steps):
         mujoco.mj_step(model, run)
         if diverged(run):
             return []
-        if (k + 1) % H._FALL_CHECK == 0 or k + 1 == int(round(C.SIM_HOLD_SECONDS / C.SIM_DT)):
+        if (k + 1) % H._FALL_CHECK == 0 or k + 1 == steps:
             mujoco.mj_kinematics(model, run)
             mujoco.mj_objectVelocity(model, run, mujoco.mjtObj.mjOBJ_BODY, b, vel, 0)
             p, q = H._pose_of(model, run)
