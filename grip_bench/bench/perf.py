@@ -840,8 +840,7 @@ def _hold_row(chosen: list[tuple[object, int]], settings: Settings, stage: str,
 
     sample = repeat(run, settings.repeats)
     if as_run:
-        tests = len(hold.AXES) + len(C.HOLD_MU_SENSITIVITY)  # a frame's tests in a run
-        return row_from(stage, sample, len(chosen) * tests, "ms/test", "tests/s")
+        return row_from(stage, sample, len(chosen) * _tests_per_scene(), "ms/test", "tests/s")
     return row_from(stage, sample, len(chosen), "ms/test", "tests/s",
                     goal=Goal("min_rate", 20.0, ">= 20 tests/s/core"))
 
@@ -893,16 +892,21 @@ def _dataset_hold(settings: Settings, core: str, progress: Progress) -> list[Row
         raise InputError(f"no tested held frames in the {settings.data_split} split", data)
     n = DATA_TESTS_QUICK if settings.quick else DATA_TESTS
     chosen = [chosen[i] for i in np.unique(np.linspace(0, len(chosen) - 1, n).astype(int))]
-    from ..core import constants as C
-    from ..metrics.hold import AXES
-
     what = f"{data.name} {settings.data_split} split ({len(chosen)} tested frames, {core})"
     rows = [_hold_row(chosen, settings, f"physics articulated hold test, {what}")]
     progress(f"{rows[-1].stage}: {rows[-1].rate:.1f} tests/s")
-    per = len(AXES) + len(C.HOLD_MU_SENSITIVITY)
     rows.append(_hold_row(chosen, settings, "physics articulated hold tests as a run computes "
-                          f"them ({per} a scene), {what}", as_run=True))
+                          f"them ({_tests_per_scene()} a scene), {what}", as_run=True))
     return rows
+
+
+def _tests_per_scene() -> int:
+    """The articulated hold tests a run computes on one tested frame's scene for the physics
+    table: the six gravity directions at mu = 1 and the world's at each sensitivity friction."""
+    from ..core import constants as C
+    from ..metrics.hold import AXES
+
+    return len(AXES) + len(C.HOLD_MU_SENSITIVITY)
 
 
 def measure_stages(settings: Settings, floors: dict[str, Floor], scene: Scene,
