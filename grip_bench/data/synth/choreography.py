@@ -27,6 +27,8 @@ from .script import Script
 from .world import USE_VERBS, Subject
 
 PREGRASP_DIST = 0.08  # m; the wrist pauses this far back along the approach before closing in
+CLOSE_FROM = 0.45  # of the approach: the fingers close from here as the palm arrives
+PREGRASP_RISE = 0.02  # m; the pre-grasp pose also stands this much higher
 REGRASP_MOVE_TURN = np.radians(40.0)  # rad; wrist paths turning more than this go round the object
 TABLE_LIFT = 0.08  # m; clearance of a hand length below the wrist when crossing the table edge
 AIR_CLEARANCE = 0.12  # m; hand room between a held object's lowest possible point and the table
@@ -118,7 +120,7 @@ def reach_and_grasp(sc: Script, cast: Cast, sides: Sequence[str], obj_R: np.ndar
     for s in sides:
         g = grasps[s]
         Rw, pw = wrist_of(obj_R, obj_p, g)
-        pre = pw + PREGRASP_DIST * (obj_R @ g.approach) + np.array([0.0, 0.02, 0.0])
+        pre = pw + PREGRASP_DIST * (obj_R @ g.approach) + np.array([0.0, PREGRASP_RISE, 0.0])
         start = sc.wrist[s].last[0]
         via = _over_table(cast, start, pre) if on_table else None
         if via is None and around:
@@ -130,7 +132,7 @@ def reach_and_grasp(sc: Script, cast: Cast, sides: Sequence[str], obj_R: np.ndar
         Rw, pw = wrist_of(obj_R, obj_p, grasps[s])
         # contact with speed: few frames near but not holding
         sc.move(s, a, b, pw, Rw, ease="arrive")
-        sc.shape(s, a + int(0.45 * (b - a)), b, grasps[s].hand_pose)
+        sc.shape(s, a + int(CLOSE_FROM * (b - a)), b, grasps[s].hand_pose)
 
 
 def release_and_retreat(

@@ -128,6 +128,24 @@ GRASP_TYPES = ("power", "handle", "precision", "tripod", "lateral", "hook", "bim
 PINCH_KINDS = ("precision", "tripod")  # the object sits where the finger pads meet
 PINCH_FIT_STEPS = 12  # poses on a pinch's closing path searched for the tips' aperture
 CHORD_STEP, CHORD_REACH = 0.001, 0.06  # m; sampling of the object's chord between the tips
+# Exact pinches: the thumb pad and the finger pad put on two opposing surface points
+# (the far point's normal within EXACT_PAIR_DEG of the near one's reverse, so the pads press
+# straight against each other) whose axis passes nearest the centre of mass (people pinch
+# across the centre of mass: the load then turns nothing), in the procedural hand's most
+# opposed pinch of that width (data.synth.pinch_table).
+# Off in 2.3 (the committed reports' data); measured, and to be switched on (2.4) with the
+# next regeneration of reports/default (docs/synthgrab.md, "Exact pinches").
+EXACT_PINCHES = False
+EXACT_SAMPLES = 800  # surface points tried as the near contact (seeded, area-weighted)
+EXACT_PAIRS = 24  # opposing pairs kept per search, nearest the centre of mass first
+EXACT_PAIR_DEG = 20.0
+EXACT_PAIR_MIN = 0.004  # m; the thinnest width a pinch is placed across
+EXACT_PAIR_SPREAD = (0.004, 0.97)  # m, |cos|: kept pairs differ by this much in place or axis
+EXACT_CLEARANCE = 0.0006  # m; each pad stands this far off its contact before closing
+EXACT_TABLE_ROOM = 0.012  # m; both contacts this far above the table (a pad is ~1 cm thick)
+EXACT_MAX_ROLL = np.radians(75.0)  # off the natural finger direction (ROLLS go to 70)
+APPROACH_CHECKS = (0.3, 0.45, 0.6, 0.75, 0.9)  # of the approach: a placed pinch checked there
+RELEASE_CHECKS = (0.0, 1 / 3, 2 / 3)  # closed fraction: the placed pinch opening to let go
 # Largest thinnest extent (m) an object may have for each pinch type: the pre-shapes open
 # the thumb pad 7 cm from the index pad at hand scale 1.
 PINCH_WIDTH = {"precision": 0.055, "tripod": 0.07, "lateral": 0.03}
@@ -390,8 +408,14 @@ class GraspSynthesizer:
         avoid: np.ndarray | None,
         up: float = 1.0,
     ) -> Grasp | None:
-        """:meth:`search` for one grasp kind: the usual wrist rolls first, the far ones only
-        when none of those holds (they rarely win the score: this halves the work)."""
+        """:meth:`search` for one grasp kind: with ``EXACT_PINCHES`` a pinch aimed at no given
+        part tries the exact pinches first (:meth:`_exact_pinch`); then the usual wrist
+        rolls, the far ones only when none of those holds (they rarely win the score: this
+        halves the work)."""
+        if EXACT_PINCHES and target is None and kind in PINCH_KINDS:  # exact pinches first
+            grasp = self._exact_pinch(side, dirs, finger_ref, rng, kind, above_table, avoid, up)
+            if grasp is not None:
+                return grasp
         # (a hook holds a handle only: it is aimed at the handle whatever the caller's target)
         target = (self._target(kind, up) if target is None or kind == "hook"
                   else np.asarray(target, float))
@@ -652,6 +676,135 @@ class GraspSynthesizer:
             return np.asarray(self.handles[0].axis, float)
         axes, spread = self._axes
         return axes[0] if spread[0] > 1.6 * spread[1] else None
+
+    # -- exact pinches (2.4) -------------------------------------------------------------
+    def opposing_pairs(self, kind: str, up: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Opposing contact pairs (object frame) for a pinch of ``kind``: near points p1 (K, 3)
+        sampled on the surface and the points p2 (K, 3) where the line along their inward
+        normal leaves the object again, kept where p2's normal is within ``EXACT_PAIR_DEG``
+        of the reverse of p1's, the width is ``EXACT_PAIR_MIN`` to the pinch's opening
+        (``PINCH_WIDTH``, scaled with the hand) and both stand ``EXACT_TABLE_ROOM`` above the
+        table (``up`` as in :meth:`search`); at most ``EXACT_PAIRS``, those whose axis passes
+        nearest the centre of mass first, spread apart (``EXACT_PAIR_SPREAD``). Each pair
+        appears once (p1 is either end). Deterministic: the samples have their own seed."""
+        key = (kind, float(up))
+        if key not in self._pairs:
+            self._pairs[key] = self._find_pairs(kind, up)
+        return self._pairs[key]
+
+    @functools.cached_property
+    def _pairs(self) -> dict:
+        return {}
+
+    def _find_pairs(self, kind: str, up: float) -> tuple[np.ndarray, np.ndarray]:
+        import trimesh
+
+        p1, face = trimesh.sample.sample_surface(self.mesh, EXACT_SAMPLES, seed=0)
+        n1 = np.asarray(self.mesh.face_normals)[face]
+        s = np.arange(EXACT_PAIR_MIN, PINCH_WIDTH[kind] * self.scale + 1e-9, CHORD_STEP)
+        pts = p1[:, None] - s[None, :, None] * n1[:, None]
+        inside = self.df.signed_distance(pts.reshape(-1, 3), far="bound").reshape(len(p1), -1) < 0
+        exit_ = np.where(~inside, np.arange(len(s)), len(s)).min(1)  # first sample outside
+        ok = inside[:, 0] & (exit_ < len(s))
+        width = s[np.clip(exit_, 0, len(s) - 1)] - 0.5 * CHORD_STEP
+        p1, n1, width = p1[ok], n1[ok], width[ok]
+        p2 = p1 - width[:, None] * n1
+        n2 = np.asarray(self.df.gradient(p2), float).reshape(-1, 3)
+        n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-12)
+        keep = np.einsum("ij,ij->i", n2, -n1) >= np.cos(np.radians(EXACT_PAIR_DEG))
+        keep &= np.minimum(up * p1[:, 1], up * p2[:, 1]) > self.table_y + EXACT_TABLE_ROOM
+        p1, p2, n1 = p1[keep], p2[keep], n1[keep]
+        w = self._com - p1  # the axis runs along -n1
+        off = np.linalg.norm(w - np.einsum("ij,ij->i", w, n1)[:, None] * n1, axis=1)
+        chosen: list[int] = []
+        mid = 0.5 * (p1 + p2)
+        for k in np.argsort(off, kind="stable"):
+            if all(np.linalg.norm(mid[k] - mid[j]) > EXACT_PAIR_SPREAD[0]
+                   or abs(n1[k] @ n1[j]) < EXACT_PAIR_SPREAD[1] for j in chosen):
+                chosen.append(int(k))
+            if len(chosen) == EXACT_PAIRS:
+                break
+        return p1[chosen], p2[chosen]
+
+    def _exact_pinch(
+        self,
+        side: str,
+        dirs: np.ndarray,
+        finger_ref: np.ndarray,
+        rng: np.random.Generator,
+        kind: str,
+        above_table: bool,
+        avoid: np.ndarray | None,
+        up: float,
+    ) -> Grasp | None:
+        """The best exact pinch of ``kind`` (None: no valid one). Per opposing pair
+        (:meth:`opposing_pairs`, the thumb at either end) the table's narrowest pinch whose
+        pads stand ``EXACT_CLEARANCE`` off both contacts (:func:`exact_pinch_poses`), its pad
+        line turned onto the pair's axis and rolled about it so that the palm faces along
+        each approach direction (skipped where the approach runs along the axis, or the
+        fingers point more than ``EXACT_MAX_ROLL`` off ``finger_ref``), the pads' midpoint on
+        the pair's. The pre-shape at that wrist and the poses between it and the pinch must
+        cut at most ``MAX_PENETRATION`` into the object (the hand closes as it arrives). Then
+        as every candidate: clear of the table and ``avoid``, the fingers
+        the kind uses closed onto the object (the pads by a fraction of a millimetre, a
+        tripod's middle finger from half tucked), :meth:`_pick`."""
+        p1, p2 = self.opposing_pairs(kind, up)
+        if not len(p1):
+            return None
+        poses, thumb, index = exact_pinch_poses(side, self.scale, kind)
+        width = np.linalg.norm(index - thumb, axis=1)
+        R, t, pose, rolls = _pinch_frames(side, np.vstack([p1, p2]), np.vstack([p2, p1]),
+                                          dirs, finger_ref, thumb, index, width)
+        if not len(R):
+            return None
+        local = poses[pose]
+        open_ = np.broadcast_to(preshape_local(kind), local.shape).copy()
+        full, _, sub = _light_hand(side, self.scale)
+        local = self._rest_or_tuck(sub, R, t, local, kind, above_table, avoid, up)
+        for f in _RESTING_FINGERS.get(kind, ()):  # the pre-shape's resting finger: the same
+            open_[:, list(CHAINS[f])] = local[:, list(CHAINS[f])]
+        ok = np.ones(len(R), bool)
+        if above_table or avoid is not None:
+            v0, _ = _pose(sub, R, t, local)
+            ok = _clear_of(v0, avoid)
+            if above_table:
+                ok &= (up * v0[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
+        ok[ok] = self._approach_clear(sub, R[ok], t[ok], local[ok], open_[ok], up)
+        if not ok.any():
+            return None
+        R, t, local, open_, rolls = R[ok], t[ok], local[ok], open_[ok], rolls[ok]
+        local = self._close(side, R, t, local, kind)
+        return self._pick(full, side, kind, R, t, local, open_, rolls, rng, above_table, avoid, up)
+
+    def _approach_clear(self, sub: ProceduralHand, R: np.ndarray, t: np.ndarray,
+                        local: np.ndarray, open_: np.ndarray, up: float) -> np.ndarray:
+        """Whether each placed candidate (C,) comes in without cutting more than
+        ``MAX_PENETRATION`` into the object, as the episode moves it
+        (``choreography.reach_and_grasp``): the wrist from the pre-grasp pose to ``t`` along
+        the approach ("arrive" easing), the fingers closing from ``open_`` to ``local`` (C,
+        15, 3) over the approach's last part (min-jerk), checked at ``APPROACH_CHECKS``; and
+        as it lets go (``choreography.let_go``): the hand opening at the grasp's wrist,
+        checked at ``RELEASE_CHECKS`` of the way closed. A traced grasp needs no such check:
+        it stopped where it first touched."""
+        from .choreography import CLOSE_FROM, PREGRASP_DIST, PREGRASP_RISE
+        from .motion import ease_warp, min_jerk
+
+        back = -np.einsum("cij,j->ci", R, sub.palm_normal) * PREGRASP_DIST
+        back[:, 1] += up * PREGRASP_RISE
+        ok = np.ones(len(R), bool)
+        # coming in: (wrist progress, closing); letting go: the hand opens at the grasp's wrist
+        steps = [(float(ease_warp(np.float64(s), "arrive")),
+                  float(min_jerk(np.float64(max(s - CLOSE_FROM, 0.0) / (1.0 - CLOSE_FROM)))))
+                 for s in APPROACH_CHECKS] + [(1.0, c) for c in RELEASE_CHECKS]
+        for w, c in steps:
+            k = np.flatnonzero(ok)
+            if not len(k):
+                break
+            v, _ = _pose(sub, R[k], t[k] + (1.0 - w) * back[k],
+                         open_[k] + c * (local[k] - open_[k]))
+            sd = self.bound.signed_distance(self.df, v.reshape(-1, 3), GAP).reshape(len(k), -1)
+            ok[k[sd.min(1) < -MAX_PENETRATION]] = False
+        return ok
 
     # -- placement and closing ---------------------------------------------------------
     def _anchor(self, sub: ProceduralHand, local: np.ndarray, kind: str) -> np.ndarray:
@@ -951,6 +1104,101 @@ class GraspSynthesizer:
     def _com(self) -> np.ndarray:
         """The object's centre of mass (3,) (uniform density)."""
         return np.asarray(self.mesh.center_mass, float)
+
+
+# --- exact pinches ---------------------------------------------------------------------
+@functools.lru_cache(maxsize=16)
+def exact_pinch_poses(side: str, scale: float, kind: str
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The exact pinches of ``kind`` for one hand: local poses (K, 15, 3) (the table's
+    thumb and index in the kind's closed pre-shape; a tripod's middle finger half tucked, to
+    close onto the object) and their thumb and index pad points (K, 3) in the hand frame."""
+    from ...bodies.pinch import MOVED
+    from .pinch_table import MOVED_ANGLES
+
+    base = preshape_local(kind, _PINCH_CLOSED)
+    if kind == "tripod":
+        for j in CHAINS["middle"]:
+            base[j] = np.radians(_HALF_TUCKED[_kind_of(j)])
+    poses = np.repeat(base[None], len(MOVED_ANGLES), 0)
+    for k, row in enumerate(MOVED_ANGLES):
+        for (jj, ax), x in zip(MOVED, row, strict=True):
+            poses[k, jj, ax] = x
+    thumb_pad, index_pad = _pad_ids()
+    full = _light_hand(side, scale)[0]
+    v, _ = _pose(full, np.tile(np.eye(3), (len(poses), 1, 1)), np.zeros((len(poses), 3)), poses)
+    return poses, v[:, thumb_pad], v[:, index_pad]
+
+
+@functools.lru_cache(maxsize=1)
+def _pad_ids() -> tuple[int, int]:
+    from ...bodies.pinch import PinchModel
+
+    m = PinchModel()
+    return m.thumb_pad, m.index_pad
+
+
+def _pinch_frames(side: str, at_thumb: np.ndarray, at_finger: np.ndarray, dirs: np.ndarray,
+                  finger_ref: np.ndarray, thumb: np.ndarray, index: np.ndarray,
+                  width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Wrist frames of exact pinches: for each contact pair (``at_thumb``, ``at_finger``
+    (P, 3)) and approach direction (``dirs`` (A, 3)), the rotation R (C, 3, 3) turning the
+    chosen pose's pad line (thumb (K, 3) -> index (K, 3) pads, ``width`` (K,) apart) onto the
+    pair's axis with the palm facing along the approach, the translation t (C, 3) putting
+    the pads' midpoint on the pair's, the pose (C,) (the narrowest clearing both contacts by
+    ``EXACT_CLEARANCE``) and the roll (C,) rad (the fingers' angle off ``finger_ref`` in the
+    palm's plane, as :meth:`GraspSynthesizer._orientations` measures it)."""
+    fh = np.array([-1.0, 0.0, 0.0]) if side == "right" else np.array([1.0, 0.0, 0.0])
+    nh = np.array([0.0, -1.0, 0.0])
+    Rs, ts, poses, rolls = [], [], [], []
+    for pa, pb in zip(at_thumb, at_finger, strict=True):
+        w = float(np.linalg.norm(pb - pa))
+        fits = np.flatnonzero(width >= w + 2.0 * EXACT_CLEARANCE)
+        if not len(fits):
+            continue
+        k = int(fits[np.argmin(width[fits])])
+        u = (pb - pa) / w
+        R0 = _turn_onto((index[k] - thumb[k]) / width[k], u)
+        palm = R0 @ nh
+        palm = palm - (palm @ u) * u
+        for d in np.asarray(dirs, float):
+            want = -d / np.linalg.norm(d)
+            want = want - (want @ u) * u
+            if np.linalg.norm(want) < 0.5:  # the approach runs along the axis
+                continue
+            angle = np.arctan2(np.cross(palm, want) @ u, palm @ want)
+            R = _axis_rotation(u, angle) @ R0
+            n, f = R @ nh, R @ fh
+            f0 = finger_ref - (finger_ref @ n) * n
+            roll = 0.0 if np.linalg.norm(f0) < 1e-6 else float(
+                np.arccos(np.clip(f @ f0 / np.linalg.norm(f0), -1.0, 1.0)))
+            if roll > EXACT_MAX_ROLL:
+                continue
+            Rs.append(R)
+            ts.append(0.5 * (pa + pb) - R @ (0.5 * (thumb[k] + index[k])))
+            poses.append(k)
+            rolls.append(roll)
+    if not Rs:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, int), np.zeros(0)
+    return np.stack(Rs), np.stack(ts), np.asarray(poses), np.asarray(rolls)
+
+
+def _axis_rotation(u: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation (3, 3) by ``angle`` about the unit axis ``u`` (Rodrigues)."""
+    K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+
+
+def _turn_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation (3, 3) taking unit ``a`` onto unit ``b``."""
+    axis = np.cross(a, b)
+    s, c = float(np.linalg.norm(axis)), float(np.clip(a @ b, -1.0, 1.0))
+    if s < 1e-9:
+        if c > 0:
+            return np.eye(3)
+        perp = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return _axis_rotation(perp / np.linalg.norm(perp), np.pi)
+    return _axis_rotation(axis / s, float(np.arctan2(s, c)))
 
 
 # --- small helpers -------------------------------------------------------------------
