@@ -58,9 +58,11 @@ class Check:
     ncon: int
 
 
-def record(scene, up, directions=(None,)) -> tuple[float, list[list[Check]]]:
+def record(scene, up, directions=(None,), settled=None) -> tuple[float, list[list[Check]]]:
     """The settle displacement (m; NaN if it diverged) and, per direction, the checks of a
-    full ``SIM_HOLD_SECONDS`` hold (empty if the run diverged), set up as ``hold`` does."""
+    full ``SIM_HOLD_SECONDS`` hold (empty if the run diverged), set up as ``hold`` does.
+    ``settled(model, data)``, if given, is called on the start and on the settled state
+    (``tools/hold_anatomy.py`` counts the contacts there)."""
     import mujoco
 
     from grip_bench.core import constants as C
@@ -72,9 +74,14 @@ def record(scene, up, directions=(None,)) -> tuple[float, list[list[Check]]]:
     try:
         mujoco.mj_forward(model, data)
         start, _ = H._pose_of(model, data)
+        if settled is not None:
+            settled(model, data)
         if not H._settle(model, data, scene.targets):
             return float("nan"), [[] for _ in directions]
         p0, q0 = H._pose_of(model, data)
+        if settled is not None:
+            mujoco.mj_forward(model, data)  # the contacts of the settled state
+            settled(model, data)
         settle = float(np.linalg.norm(p0 - start))
         return settle, [_full_hold(model, data, p0, q0, H.gravity_along(
             d, np.asarray(up, np.float64))) for d in directions]
