@@ -19,16 +19,13 @@ import numpy as np
 
 from ...core import constants as C
 from ...core.frames import SIDES
-from .grasp import Grasp
+from .grasp import CLOSE_FROM, PREGRASP_DIST, PREGRASP_RISE, Grasp
 from .motion import rotation_about
 from .objects import ObjectInstance
 from .scene import BACKOFF_DIST, SIGN, TABLE_SIZE, Cast, wrist_of
 from .script import Script
 from .world import USE_VERBS, Subject
 
-PREGRASP_DIST = 0.08  # m; the wrist pauses this far back along the approach before closing in
-CLOSE_FROM = 0.45  # of the approach: the fingers close from here as the palm arrives
-PREGRASP_RISE = 0.02  # m; the pre-grasp pose also stands this much higher
 REGRASP_MOVE_TURN = np.radians(40.0)  # rad; wrist paths turning more than this go round the object
 TABLE_LIFT = 0.08  # m; clearance of a hand length below the wrist when crossing the table edge
 AIR_CLEARANCE = 0.12  # m; hand room between a held object's lowest possible point and the table

@@ -144,6 +144,10 @@ EXACT_PAIR_SPREAD = (0.004, 0.97)  # m, |cos|: kept pairs differ by this much in
 EXACT_CLEARANCE = 0.0006  # m; each pad stands this far off its contact before closing
 EXACT_TABLE_ROOM = 0.012  # m; both contacts this far above the table (a pad is ~1 cm thick)
 EXACT_MAX_ROLL = np.radians(75.0)  # off the natural finger direction (ROLLS go to 70)
+# How a grasp is approached (choreography.reach_and_grasp plays it; _approach_clear checks it)
+PREGRASP_DIST = 0.08  # m; the wrist pauses this far back along the approach before closing in
+PREGRASP_RISE = 0.02  # m; the pre-grasp pose also stands this much higher
+CLOSE_FROM = 0.45  # of the approach: the fingers close from here as the palm arrives
 APPROACH_CHECKS = (0.3, 0.45, 0.6, 0.75, 0.9)  # of the approach: a placed pinch checked there
 RELEASE_CHECKS = (0.0, 1 / 3, 2 / 3)  # closed fraction: the placed pinch opening to let go
 # Largest thinnest extent (m) an object may have for each pinch type: the pre-shapes open
@@ -474,10 +478,7 @@ class GraspSynthesizer:
             # The pre-shape comes in and the hand opens to it again when letting go: it
             # must clear the table and the other hand too (cheap test before closing).
             v0, _ = _pose(sub, R[ok], t[ok], local0[ok])
-            keep = _clear_of(v0, avoid)
-            if above_table:
-                keep &= (up * v0[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
-            ok[np.flatnonzero(ok)[~keep]] = False
+            ok[np.flatnonzero(ok)[~self._clear(v0, above_table, avoid, up)]] = False
         if ok.any() and kind == "hook":
             # placed, not traced: the pre-shape must already be clear of the object (it comes
             # in along its palm normal and opens to it again when letting go)
@@ -765,10 +766,7 @@ class GraspSynthesizer:
             open_[:, list(CHAINS[f])] = local[:, list(CHAINS[f])]
         ok = np.ones(len(R), bool)
         if above_table or avoid is not None:
-            v0, _ = _pose(sub, R, t, local)
-            ok = _clear_of(v0, avoid)
-            if above_table:
-                ok &= (up * v0[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
+            ok = self._clear(_pose(sub, R, t, local)[0], above_table, avoid, up)
         ok[ok] = self._approach_clear(sub, R[ok], t[ok], local[ok], open_[ok], up)
         if not ok.any():
             return None
@@ -780,13 +778,13 @@ class GraspSynthesizer:
                         local: np.ndarray, open_: np.ndarray, up: float) -> np.ndarray:
         """Whether each placed candidate (C,) comes in without cutting more than
         ``MAX_PENETRATION`` into the object, as the episode moves it
-        (``choreography.reach_and_grasp``): the wrist from the pre-grasp pose to ``t`` along
+        (``choreography.reach_and_grasp``, with ``PREGRASP_DIST``, ``PREGRASP_RISE`` and
+        ``CLOSE_FROM``): the wrist from the pre-grasp pose to ``t`` along
         the approach ("arrive" easing), the fingers closing from ``open_`` to ``local`` (C,
         15, 3) over the approach's last part (min-jerk), checked at ``APPROACH_CHECKS``; and
         as it lets go (``choreography.let_go``): the hand opening at the grasp's wrist,
         checked at ``RELEASE_CHECKS`` of the way closed. A traced grasp needs no such check:
         it stopped where it first touched."""
-        from .choreography import CLOSE_FROM, PREGRASP_DIST, PREGRASP_RISE
         from .motion import ease_warp, min_jerk
 
         back = -np.einsum("cij,j->ci", R, sub.palm_normal) * PREGRASP_DIST
@@ -939,9 +937,7 @@ class GraspSynthesizer:
         for f in _RESTING_FINGERS[kind]:
             vf = v[:, np.isin(sub.bone_ids_subset, np.array(CHAINS[f]) + 1)]
             sd = self.bound.signed_distance(self.df, vf.reshape(-1, 3), 0.0).reshape(len(R), -1)
-            clear = (sd.min(1) >= 0.0) & _clear_of(vf, avoid)
-            if above_table:
-                clear &= (up * vf[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
+            clear = (sd.min(1) >= 0.0) & self._clear(vf, above_table, avoid, up)
             for j in CHAINS[f]:
                 local0[~clear, j] = np.radians(_TUCKED[_kind_of(j)])
         return local0
@@ -1061,9 +1057,7 @@ class GraspSynthesizer:
             holds = ~near[:, 0] & ~near[:, 1] & (n_fingers >= HOOK_MIN_FINGERS)
         else:
             holds = near[:, 1] & (n_fingers >= 1)
-        clear = ((up * v[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE) if above_table \
-            else np.ones(len(R), bool)
-        valid = holds & clear & (pen <= MAX_PENETRATION) & _clear_of(v, avoid)
+        valid = holds & (pen <= MAX_PENETRATION) & self._clear(v, above_table, avoid, up)
         if valid.any() and (above_table or avoid is not None):
             # Opening (letting go) and closing pass through the poses in between, where a
             # finger sweeping an arc can reach lower than at either end.
@@ -1071,10 +1065,7 @@ class GraspSynthesizer:
             sub = _light_hand(side, self.scale)[2]
             for f in (1 / 3, 2 / 3):
                 vm, _ = _pose(sub, R[k], t[k], local[k] + f * (local0[k] - local[k]))
-                ok = _clear_of(vm, avoid)
-                if above_table:
-                    ok &= (up * vm[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
-                valid[k[~ok]] = False
+                valid[k[~self._clear(vm, above_table, avoid, up)]] = False
         if not valid.any():
             return None
         score = (near @ PART_SCORE - 2.0 * rolls - 200.0 * pen + 0.3 * rng.random(len(R)))
@@ -1088,6 +1079,16 @@ class GraspSynthesizer:
             contact_parts=tuple(HAND_PARTS[p] for p in np.flatnonzero(near[best])),
             penetration=float(pen[best]), score=float(score[best]),
         )
+
+    def _clear(self, v: np.ndarray, above_table: bool, avoid: np.ndarray | None,
+               up: float) -> np.ndarray:
+        """Whether each candidate's vertices (C, V, 3) keep ``AVOID_CLEARANCE`` from ``avoid``
+        and, with ``above_table``, ``TABLE_CLEARANCE`` above the table (``up`` as in
+        :meth:`search`) (C,)."""
+        ok = _clear_of(v, avoid)
+        if above_table:
+            ok &= (up * v[..., 1]).min(1) > self.table_y + TABLE_CLEARANCE
+        return ok
 
     def _holds(self, v: np.ndarray, sd: np.ndarray, up: float) -> bool:
         """Whether one candidate hand, vertices ``v`` (V, 3) at signed distances ``sd`` (V,)
