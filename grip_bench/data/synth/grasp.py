@@ -133,8 +133,9 @@ CHORD_STEP, CHORD_REACH = 0.001, 0.06  # m; sampling of the object's chord betwe
 # straight against each other) whose axis passes nearest the centre of mass (people pinch
 # across the centre of mass: the load then turns nothing), in the procedural hand's most
 # opposed pinch of that width (data.synth.pinch_table).
-# Off in 2.3 (the committed reports' data); measured, and to be switched on (2.4) with the
-# next regeneration of reports/default (docs/synthgrab.md, "Exact pinches").
+# Off in 2.3 (the committed reports' data): measured (the test split's ground truth does not
+# change), it waits for a data change worth regenerating reports/default for (docs/synthgrab.md,
+# "Exact pinches").
 EXACT_PINCHES = False
 EXACT_SAMPLES = 800  # surface points tried as the near contact (seeded, area-weighted)
 EXACT_PAIRS = 24  # opposing pairs kept per search, nearest the centre of mass first
