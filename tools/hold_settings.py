@@ -1,17 +1,21 @@
 """How much do the hold test's verdicts depend on its settings? The articulated test under
-alternative MuJoCo options and tightenings, on a dataset's tested frames.
+alternative MuJoCo options, tightenings and time steps, on a dataset's tested frames.
 
-The articulated hold test (``metrics.hold``) fixes MuJoCo's solver options and the squeeze
-(``HOLD_TIGHTEN``, 1.5 mm; the design allows 1-2 mm). This probe runs the test as the run
-builds it (``metrics.evaluate.hold_scene``, the world's gravity, mu = 1) on every
-``--every``-th tested frame of a split (``bench.perf.tested_frames``) once as committed and
-once per variant, and reports the held share, how many verdicts differ from the committed
-ones and the simulation's milliseconds a test. Variants (``VARIANTS``): MuJoCo's two
-remedies for soft-friction creep (``impratio`` 100, 10 noslip iterations), cheaper
-collision and solver settings (the speed levers: ``ccd_iterations`` 10, ``ccd_tolerance``
-1e-4, the solver's ``tolerance`` 1e-6) and the design's two ends of the tightening (1 and
-2 mm; the scene is rebuilt, its time not counted). A diagnostic for docs/physics_hold.md
-("Measured in s44"): nothing here changes the test.
+The articulated hold test (``metrics.hold``) fixes MuJoCo's solver options, the squeeze
+(``HOLD_TIGHTEN``, 1.5 mm; the design allows 1-2 mm) and the step (``SIM_DT``, 1/240 s).
+This probe runs the test as the run builds it (``metrics.evaluate.hold_scene``, the world's
+gravity, mu = 1) on every ``--every``-th tested frame of a split
+(``bench.perf.tested_frames``) once as committed and once per variant, and reports the held
+share, how many verdicts differ from the committed ones and the simulation's milliseconds a
+test. Variants (``VARIANTS``): MuJoCo's two remedies for soft-friction creep (``impratio``
+100, 10 noslip iterations), cheaper collision and solver settings (the speed levers:
+``ccd_iterations`` 10, ``ccd_tolerance`` 1e-4, the solver's ``tolerance`` 1e-6), the
+design's two ends of the tightening (1 and 2 mm; the scene is rebuilt, its time not
+counted) and other time steps (1/180 and 1/120 s: the same simulated seconds in fewer
+steps, the one speed lever inside the design, which fixes the settle and the hold in
+seconds, not the step; 1/250 s: how many verdicts a step barely changed moves; the scene is
+rebuilt under the step, its time not counted). A diagnostic for docs/physics_hold.md
+("Measured in s44", "Measured in s46"): nothing here changes the test.
 
     python tools/hold_settings.py DATA [--split test] [--every 4] [--variants a,b] [--json]
 """
@@ -33,6 +37,9 @@ VARIANTS: dict[str, dict] = {
     "solver tolerance 1e-6": {"opt": {"tolerance": 1e-6}},
     "tighten 1 mm": {"tighten": 0.001},
     "tighten 2 mm": {"tighten": 0.002},
+    "step 1/250 s": {"dt": 1.0 / 250.0},  # the verdicts' own sensitivity to the step
+    "step 1/180 s": {"dt": 1.0 / 180.0},
+    "step 1/120 s": {"dt": 1.0 / 120.0},
 }
 
 
@@ -50,16 +57,21 @@ def options(model, opt: dict):
 
 
 @contextmanager
-def tightening(metres: float):
-    """``constants.HOLD_TIGHTEN`` set to ``metres`` while scenes are built, restored after."""
+def constant(name: str, value: float):
+    """``constants.<name>`` set to ``value`` meanwhile (scenes built and run), restored after."""
     from grip_bench.core import constants as C
 
-    saved = C.HOLD_TIGHTEN
-    C.HOLD_TIGHTEN = metres
+    saved = getattr(C, name)
+    setattr(C, name, value)
     try:
         yield
     finally:
-        C.HOLD_TIGHTEN = saved
+        setattr(C, name, saved)
+
+
+def tightening(metres: float):
+    """``constants.HOLD_TIGHTEN`` set to ``metres`` while scenes are built, restored after."""
+    return constant("HOLD_TIGHTEN", metres)
 
 
 def run_variant(pair, t: int, committed, variant: dict):
@@ -72,6 +84,12 @@ def run_variant(pair, t: int, committed, variant: dict):
     if variant and "tighten" in variant:
         with tightening(variant["tighten"]):
             scene = hand_scene(posed_hands(pair, t), pair.mesh, object_pose(pair, t), up)
+    if variant and "dt" in variant:  # the step is compiled into the scene and sets the counts
+        with constant("SIM_DT", variant["dt"]):
+            scene = hand_scene(posed_hands(pair, t), pair.mesh, object_pose(pair, t), up)
+            start = time.perf_counter()
+            res = hold(scene, up)[0]
+            return bool(res.held), time.perf_counter() - start
     with options(scene.model, (variant or {}).get("opt", {})):
         start = time.perf_counter()
         res = hold(scene, up)[0]

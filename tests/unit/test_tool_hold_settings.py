@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from grip_bench.core import constants as C
-from tools.hold_settings import VARIANTS, _names, options, summarise, tightening
+from tools.hold_settings import VARIANTS, _names, constant, options, summarise, tightening
 
 
 def test_options_are_restored_even_after_an_error():
@@ -28,6 +28,21 @@ def test_tightening_is_restored():
     with tightening(0.002):
         assert C.HOLD_TIGHTEN == 0.002
     assert C.HOLD_TIGHTEN == before
+
+
+def test_a_step_variant_compiles_its_step_and_is_restored():
+    """The time-step variants rebuild the scene under their ``SIM_DT``: the compiled step is
+    theirs (the settle and hold counts read the same constant), then 1/240 s again."""
+    from grip_bench.metrics.hold import _spec
+
+    before = C.SIM_DT
+    dt = VARIANTS["step 1/120 s"]["dt"]
+    with constant("SIM_DT", dt):
+        model = _spec(C.UP).compile()
+        assert model.opt.timestep == pytest.approx(1.0 / 120.0)
+        assert int(round(C.SIM_HOLD_SECONDS / C.SIM_DT)) == 120
+    assert C.SIM_DT == before == pytest.approx(1.0 / 240.0)
+    assert _spec(C.UP).compile().opt.timestep == pytest.approx(1.0 / 240.0)
 
 
 def test_summary_counts_differences_from_the_committed_verdicts():
