@@ -17,7 +17,8 @@ seconds, not the step; 1/250 s: how many verdicts a step barely changed moves; t
 rebuilt under the step, its time not counted). A diagnostic for docs/physics_hold.md
 ("Measured in s44", "Measured in s46"): nothing here changes the test.
 
-    python tools/hold_settings.py DATA [--split test] [--every 4] [--variants a,b] [--json]
+    python tools/hold_settings.py DATA [--split test] [--every 4] [--variants a,b] [--pred DIR]
+        [--json]
 """
 
 from __future__ import annotations
@@ -110,11 +111,16 @@ def summarise(committed: list[bool], rows: dict[str, list[tuple[bool, float]]]) 
 
 
 def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
-          every: int = 4, names: tuple[str, ...] = tuple(VARIANTS)) -> dict:
+          every: int = 4, names: tuple[str, ...] = tuple(VARIANTS),
+          pred_dir: Path | None = None) -> dict:
+    """``pred_dir``: a GRAB-layout folder of predicted (or perturbed) sequences of the same
+    names, tested on the ground truth's frames with its hands, as the run does (None: the
+    ground truth itself)."""
     from grip_bench.metrics.evaluate import hold_scene
     from tools.probe_cli import tested_frames
 
-    frames = [(pair, int(t)) for pair, ts in tested_frames(data_dir, split, model_path)
+    frames = [(pair, int(t)) for pair, ts in tested_frames(data_dir, split, model_path,
+                                                           pred_dir)
               for t in ts][::every]
     rows: dict[str, list[tuple[bool, float]]] = {n: [] for n in ("committed", *names)}
     for pair, t in frames:
@@ -142,10 +148,13 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument("--every", type=int, default=4, help="every N-th tested frame")
         ap.add_argument("--variants", type=_names, default=tuple(VARIANTS),
                         help="comma-separated names of VARIANTS (default: all)")
+        ap.add_argument("--pred", type=Path, default=None,
+                        help="predicted or perturbed sequences to test instead of DATA's own "
+                             "(e.g. a `grip-bench data perturb` output)")
 
     args = parse(__doc__, argv, extend)
     res = run(lambda: probe(args.data, args.split, args.model_path, args.every,
-                            args.variants))
+                            args.variants, args.pred))
     if res is None:
         return 1
     if args.json:
