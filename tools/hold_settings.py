@@ -11,11 +11,12 @@ test. Variants (``VARIANTS``): MuJoCo's two remedies for soft-friction creep (``
 100, 10 noslip iterations), cheaper collision and solver settings (the speed levers:
 ``ccd_iterations`` 10, ``ccd_tolerance`` 1e-4, the solver's ``tolerance`` 1e-6), the
 design's two ends of the tightening (1 and 2 mm; the scene is rebuilt, its time not
-counted) and other time steps (1/180 and 1/120 s: the same simulated seconds in fewer
-steps, the one speed lever inside the design, which fixes the settle and the hold in
-seconds, not the step; 1/250 s: how many verdicts a step barely changed moves; the scene is
-rebuilt under the step, its time not counted). A diagnostic for docs/physics_hold.md
-("Measured in s44", "Measured in s46"): nothing here changes the test.
+counted) and other time steps, the scene rebuilt under each, its time not counted: 1/480 s
+(is the committed step converged?), 1/250 s (how many verdicts a step barely changed
+moves), 1/180 and 1/120 s (the same simulated seconds in fewer steps: the one speed lever
+inside the design, which fixes the settle and the hold in seconds, not the step). A
+diagnostic for docs/physics_hold.md ("Measured in s44", "Measured in s46"): nothing here
+changes the test.
 
     python tools/hold_settings.py DATA [--split test] [--every 4] [--variants a,b] [--pred DIR]
         [--json]
@@ -38,6 +39,7 @@ VARIANTS: dict[str, dict] = {
     "solver tolerance 1e-6": {"opt": {"tolerance": 1e-6}},
     "tighten 1 mm": {"tighten": 0.001},
     "tighten 2 mm": {"tighten": 0.002},
+    "step 1/480 s": {"dt": 1.0 / 480.0},  # converged? half the committed step
     "step 1/250 s": {"dt": 1.0 / 250.0},  # the verdicts' own sensitivity to the step
     "step 1/180 s": {"dt": 1.0 / 180.0},
     "step 1/120 s": {"dt": 1.0 / 120.0},
