@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 # name -> MuJoCo ``model.opt`` fields to set, or the tightening (m) to build the scene with
@@ -82,21 +82,20 @@ def run_variant(pair, t: int, committed, variant: dict):
     from grip_bench.metrics.evaluate import object_pose, posed_hands
     from grip_bench.metrics.hold import hand_scene, hold
 
-    up = pair.options.up
-    scene = committed
-    if variant and "tighten" in variant:
-        with tightening(variant["tighten"]):
-            scene = hand_scene(posed_hands(pair, t), pair.mesh, object_pose(pair, t), up)
-    if variant and "dt" in variant:  # the step is compiled into the scene and sets the counts
-        with constant("SIM_DT", variant["dt"]):
-            scene = hand_scene(posed_hands(pair, t), pair.mesh, object_pose(pair, t), up)
+    up, variant = pair.options.up, variant or {}
+    # a step is compiled into the scene and sets the settle's and the hold's step counts, so
+    # it holds while the scene is built and run; a tightening only while it is built
+    step = constant("SIM_DT", variant["dt"]) if "dt" in variant else nullcontext()
+    squeeze = tightening(variant["tighten"]) if "tighten" in variant else nullcontext()
+    with step:
+        scene = committed
+        if "dt" in variant or "tighten" in variant:
+            with squeeze:
+                scene = hand_scene(posed_hands(pair, t), pair.mesh, object_pose(pair, t), up)
+        with options(scene.model, variant.get("opt", {})):
             start = time.perf_counter()
             res = hold(scene, up)[0]
             return bool(res.held), time.perf_counter() - start
-    with options(scene.model, (variant or {}).get("opt", {})):
-        start = time.perf_counter()
-        res = hold(scene, up)[0]
-        return bool(res.held), time.perf_counter() - start
 
 
 def summarise(committed: list[bool], rows: dict[str, list[tuple[bool, float]]]) -> dict:
