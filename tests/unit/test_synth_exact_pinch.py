@@ -1,4 +1,4 @@
-"""SynthGRAB's exact pinches (``grasp.EXACT_PINCHES``, off in 2.3): opposing contact pairs on
+"""SynthGRAB's exact pinches (``grasp.EXACT_PINCHES``, on since 2.4): opposing contact pairs on
 an analytic box, the wrist frames that put the pads on them, and whole pinches of a cube and a
 cylinder whose pads press on opposite faces (reference: the box's own geometry)."""
 
@@ -122,5 +122,5 @@ def test_exact_pinch_presses_opposite_sides(monkeypatch, name, kind):
     np.testing.assert_array_equal(g2.hand_pose, g.hand_pose)
 
 
-def test_exact_pinches_are_off_in_2_3():
-    assert G.EXACT_PINCHES is False
+def test_exact_pinches_are_on_since_2_4():
+    assert G.EXACT_PINCHES is True

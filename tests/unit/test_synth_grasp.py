@@ -165,3 +165,29 @@ def test_pinch_placement_straddles_the_chord():
     chord = float(s[inside].max() - s[inside].min())
     assert gaps[k] >= chord  # the tips clear the object...
     assert np.linalg.norm(mids[k] - target) < 0.004  # ...centred on it (to the 1 mm grid)
+
+
+def test_handle_grasp_wraps_the_bar_not_its_end():
+    """A handle grasp's palm normal and finger direction stay off the bar's axis
+    (``HANDLE_PALM_COS``, ``HANDLE_FINGER_COS``): from along the axis (a mug's upright bar,
+    approached from straight above) the hand would rest on the bar's end, which no lift
+    holds."""
+    obj, _, gs = _synth("mug")
+    axis = np.asarray(obj.handles[0].axis, float)
+    fh, nh = np.array([-1.0, 0.0, 0.0]), np.array([0.0, -1.0, 0.0])  # right hand's frame
+    along = axis[None] * np.array([[1.0], [-1.0]])
+    R, _ = gs._orientations("right", along, np.array([0.0, 0.0, 1.0]), "handle")
+    assert len(R) == 0  # nothing from straight along the bar
+    R, _ = gs._orientations("right", _approach_dirs("right"), np.array([0.0, 0.0, 1.0]),
+                            "handle")
+    assert len(R) > 0
+    assert np.abs(R @ nh @ axis).max() < G.HANDLE_PALM_COS
+    assert np.abs(R @ fh @ axis).max() <= G.HANDLE_FINGER_COS + 1e-9
+    # a power grasp of the same object keeps its approaches from above
+    R, _ = gs._orientations("right", along, np.array([0.0, 0.0, 1.0]), "power")
+    assert len(R) > 0
+    steep = np.vstack([_approach_dirs("right"), [[0.0, 1.0, 0.0]]])
+    g = gs.search("right", steep, np.array([0.0, 0.0, 1.0]), np.random.default_rng(1),
+                  kind="handle")
+    assert g is not None and g.kind == "handle"
+    assert abs(float(g.R @ nh @ axis)) < G.HANDLE_PALM_COS

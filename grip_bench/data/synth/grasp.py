@@ -133,10 +133,8 @@ CHORD_STEP, CHORD_REACH = 0.001, 0.06  # m; sampling of the object's chord betwe
 # straight against each other) whose axis passes nearest the centre of mass (people pinch
 # across the centre of mass: the load then turns nothing), in the procedural hand's most
 # opposed pinch of that width (data.synth.pinch_table).
-# Off in 2.3 (the committed reports' data): measured (the test split's ground truth does not
-# change), it waits for a data change worth regenerating reports/default for (docs/synthgrab.md,
-# "Exact pinches").
-EXACT_PINCHES = False
+# On since 2.4 (off in 2.3; docs/synthgrab.md, "Exact pinches").
+EXACT_PINCHES = True
 EXACT_SAMPLES = 800  # surface points tried as the near contact (seeded, area-weighted)
 EXACT_PAIRS = 24  # opposing pairs kept per search, nearest the centre of mass first
 EXACT_PAIR_DEG = 20.0
@@ -154,6 +152,11 @@ RELEASE_CHECKS = (0.0, 1 / 3, 2 / 3)  # closed fraction: the placed pinch openin
 # Largest thinnest extent (m) an object may have for each pinch type: the pre-shapes open
 # the thumb pad 7 cm from the index pad at hand scale 1.
 PINCH_WIDTH = {"precision": 0.055, "tripod": 0.07, "lateral": 0.03}
+# A handle grasp wraps the fingers round the bar: its palm normal at least 37 degrees off the
+# bar's axis (|cos| < 0.8, as a wrap round a long axis needs) and its fingers at least 60
+# (|cos| <= 0.5). Closer to the axis the hand comes in over the bar's end and rests on it,
+# which no lift holds (SynthGRAB 2.4).
+HANDLE_PALM_COS, HANDLE_FINGER_COS = 0.5, 0.5
 POWER_MIN_WIDTH = 0.048  # m; smaller objects slip out of a closed fist (measured: no grasp)
 LATERAL_MIN_HEIGHT = 0.06  # m; vertical extent a lateral pinch needs above the table
 # A hook needs room beyond its bar for the curled middle and distal phalanges: the handle's
@@ -570,7 +573,8 @@ class GraspSynthesizer:
         lo, hi = (float(x) for x in self.mesh.bounds[:, 1])
         if up < 0:
             lo, hi, y = -hi, -lo, -y
-        y = max(y, hi - 0.02)
+        if y - lo < 0.025 or flat or hi - lo > 0.08:
+            y = max(y, hi - 0.02)
         if flat:
             y = max(y, lo + 0.75 * (hi - lo))
         return y if up > 0 else -y
@@ -608,6 +612,7 @@ class GraspSynthesizer:
         """
         rolls = ROLLS if rolls is None else rolls
         wrap = self._wrap_axis(kind) if wrap else None
+        bar = self._wrap_axis(kind) if kind == "handle" else None
         Rs, roll_of = [], []
         for d in np.asarray(approach_dirs, float):
             n = -d / np.linalg.norm(d)  # palm faces into the object
@@ -615,7 +620,11 @@ class GraspSynthesizer:
             if np.linalg.norm(f0) < 1e-6:
                 f0 = np.cross(n, [1.0, 0.0, 0.0])
             f0 /= np.linalg.norm(f0)
+            if bar is not None and abs(bar @ n) >= HANDLE_PALM_COS:
+                continue  # along the bar the fingers cannot wrap it: a hand on its end
             candidates = [(_rotate(f0, n, r), abs(r)) for r in rolls]
+            if bar is not None:  # the fingers go round the bar, not along it
+                candidates = [(f, r) for f, r in candidates if abs(bar @ f) <= HANDLE_FINGER_COS]
             if wrap is not None and abs(wrap @ n) < 0.8:  # fingers wrap around the long axis
                 fw = np.cross(wrap, n)
                 fw /= np.linalg.norm(fw)
@@ -627,6 +636,8 @@ class GraspSynthesizer:
                 # lateral: the same finger direction, the side of the index to the object
                 Rs.append(R @ _LATERAL_TURN if kind == "lateral" else R)
                 roll_of.append(r)
+        if not Rs:
+            return np.zeros((0, 3, 3)), np.zeros(0)
         return np.stack(Rs), np.asarray(roll_of)
 
     def _hook_orientations(

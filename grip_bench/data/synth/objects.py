@@ -274,12 +274,18 @@ def _sphere_volume(p: Params) -> float:
     return np.pi * p["diameter"] ** 3 / 6
 
 
-def _box(p: Params) -> Built:
-    return Built(Manifold.cube((p["size_x"], p["size_y"], p["size_z"]), center=True))
+def _bin(p: Params) -> Built:
+    """Open-top storage box: a floor and four walls ``wall`` thick (a container, so its mass
+    is its walls': a solid block that size weighed 10.5 kg at the suite's density)."""
+    sx, sy, sz, w = p["size_x"], p["size_y"], p["size_z"], p["wall"]
+    outer = Manifold.cube((sx, sy, sz), center=True)
+    inner = Manifold.cube((sx - 2 * w, sy - 2 * w, sz), center=True).translate((0, 0, w))
+    return Built(outer - inner)
 
 
-def _box_volume(p: Params) -> float:
-    return p["size_x"] * p["size_y"] * p["size_z"]
+def _bin_volume(p: Params) -> float:
+    sx, sy, sz, w = p["size_x"], p["size_y"], p["size_z"], p["wall"]
+    return sx * sy * sz - (sx - 2 * w) * (sy - 2 * w) * (sz - w)
 
 
 def _cube(p: Params) -> Built:
@@ -736,8 +742,10 @@ def _families() -> list[ObjectFamily]:
              {"length": (0.12, 0.19), "height_ratio": (0.85, 1.0), "width_ratio": (0.5, 0.6)},
              _elephant, "power", "none", note="toy elephant"),
         _fam("boxlarge", (lo_l, 0.45),
-             {"size_x": (0.3, 0.45), "size_y": (0.2, 0.3), "size_z": (0.18, 0.28)},
-             _box, "bimanual", "none", large=True, volume=_box_volume, note="storage box"),
+             {"size_x": (0.3, 0.45), "size_y": (0.2, 0.3), "size_z": (0.18, 0.28),
+              "wall": (0.004, 0.006)},
+             _bin, "bimanual", "none", large=True, volume=_bin_volume,
+             note="open storage box"),
         _fam("basin", (0.31, hi_l),
              {"diameter": (0.32, 0.45), "height": (0.1, 0.16), "wall": (0.004, 0.005)},
              _bowl, "bimanual", "pour", large=True, note="large hollow basin"),
