@@ -20,6 +20,14 @@ def _approach_dirs(side):
     return np.array(out)
 
 
+def _ring(elevation_deg):
+    """Object->hand directions every 30 degrees round the object at one elevation."""
+    el = np.radians(elevation_deg)
+    az = np.radians(np.arange(0, 360, 30))
+    return np.stack([np.cos(az) * np.cos(el), np.full_like(az, np.sin(el)),
+                     np.sin(az) * np.cos(el)], axis=1)
+
+
 def _posed(g, side):
     """World vertices (V, 3) of grasp ``g``'s closed hand, in the object's frame."""
     hand = G._light_hand(side, 1.0)[0]
@@ -46,7 +54,11 @@ def _synth(name):
 def test_grasp_holds_without_penetration(name, side, kind):
     torch.set_num_threads(1)
     obj, df, gs = _synth(name)
-    g = gs.search(side, _approach_dirs(side), np.array([0.0, 0.0, 1.0]), np.random.default_rng(1))
+    # a handle is wrapped from beside its upright bar (HANDLE_PALM_COS): round it, a little
+    # above, fingers pointing back past the bar
+    dirs, ref = (_ring(20), [0.0, 0.0, -1.0]) if kind == "handle" else \
+        (_approach_dirs(side), [0.0, 0.0, 1.0])
+    g = gs.search(side, dirs, np.array(ref), np.random.default_rng(1))
     assert g is not None and g.kind == kind and g.side == side
     hand = G._light_hand(side, 1.0)[0]
     v = _posed(g, side)
@@ -186,8 +198,10 @@ def test_handle_grasp_wraps_the_bar_not_its_end():
     # a power grasp of the same object keeps its approaches from above
     R, _ = gs._orientations("right", along, np.array([0.0, 0.0, 1.0]), "power")
     assert len(R) > 0
-    steep = np.vstack([_approach_dirs("right"), [[0.0, 1.0, 0.0]]])
-    g = gs.search("right", steep, np.array([0.0, 0.0, 1.0]), np.random.default_rng(1),
-                  kind="handle")
+    # a search from every side, straight above included, finds a wrap off the axis
+    dirs = np.vstack([_ring(20), [[0.0, 1.0, 0.0]]])
+    g = gs.search("right", dirs, np.array([0.0, 0.0, -1.0]), np.random.default_rng(1),
+                  kind="handle", steep=True)
     assert g is not None and g.kind == "handle"
     assert abs(float(g.R @ nh @ axis)) < G.HANDLE_PALM_COS
+    assert abs(float(g.R @ fh @ axis)) <= G.HANDLE_FINGER_COS + 1e-9

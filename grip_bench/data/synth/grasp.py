@@ -617,8 +617,8 @@ class GraspSynthesizer:
         for d in np.asarray(approach_dirs, float):
             n = -d / np.linalg.norm(d)  # palm faces into the object
             f0 = finger_ref - (finger_ref @ n) * n
-            if np.linalg.norm(f0) < 1e-6:
-                f0 = np.cross(n, [1.0, 0.0, 0.0])
+            if np.linalg.norm(f0) < 1e-6:  # reference along the approach: any perpendicular
+                f0 = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
             f0 /= np.linalg.norm(f0)
             if bar is not None and abs(bar @ n) >= HANDLE_PALM_COS:
                 continue  # along the bar the fingers cannot wrap it: a hand on its end
