@@ -567,9 +567,11 @@ class GraspSynthesizer:
         return self.centre
 
     def pinch_height(self, y: float, up: float = 1.0, flat: bool = False) -> float:
-        """Height (object frame) at which to pinch a part centred at height ``y``: at most 2 cm
-        under the top (the bottom when the object will be put down upside down); ``flat``: in
-        its upper quarter, so the finger pads keep clear of the table under a flat object."""
+        """Height (object frame) at which to pinch a part centred at height ``y``: there, when
+        the object is compact (at most 8 cm tall, ``y`` at least 2.5 cm above its base: the
+        pads then press on its widest section, SynthGRAB 2.4); otherwise at most 2 cm under
+        the top (the bottom when the object will be put down upside down); ``flat``: in its
+        upper quarter, so the finger pads keep clear of the table under a flat object."""
         lo, hi = (float(x) for x in self.mesh.bounds[:, 1])
         if up < 0:
             lo, hi, y = -hi, -lo, -y
