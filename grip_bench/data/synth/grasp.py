@@ -613,8 +613,9 @@ class GraspSynthesizer:
         the two orientations wrapping the fingers around a long axis (if any).
         """
         rolls = ROLLS if rolls is None else rolls
-        wrap = self._wrap_axis(kind) if wrap else None
-        bar = self._wrap_axis(kind) if kind == "handle" else None
+        axis = self._wrap_axis(kind)
+        wrap = axis if wrap else None
+        bar = axis if kind == "handle" else None  # a handle's bar (SynthGRAB 2.4's rule)
         Rs, roll_of = [], []
         for d in np.asarray(approach_dirs, float):
             n = -d / np.linalg.norm(d)  # palm faces into the object
