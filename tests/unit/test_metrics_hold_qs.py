@@ -128,6 +128,85 @@ def test_contacts_on_a_sphere_agree_with_the_reference():
     assert 0 < sum(verdicts) < len(verdicts)
 
 
+# ------------------------------------------------------------------ one rigid part, one side
+def _wall(n: int = 5, half: float = 0.0015):
+    """Contacts on both faces (x = -half, +half) of a thin wall and on its rounded top edge:
+    points (3 n, 3) and outward normals (3 n, 3); the top's normals lean to both faces."""
+    z = np.linspace(-0.004, 0.004, n)
+    out = [np.c_[np.full(n, s * half), np.zeros(n), z] for s in (-1.0, 1.0)]
+    nrm = [np.tile([s, 0.0, 0.0], (n, 1)) for s in (-1.0, 1.0)]
+    lean = np.linspace(-0.6, 0.6, n)  # the rounded top: normals from one face to the other
+    top = np.c_[lean * half, np.full(n, 0.001), z]
+    top_n = np.c_[lean, np.ones(n), np.zeros(n)]
+    return np.concatenate([*out, top]), np.concatenate([*nrm, top_n])
+
+
+def _one_sided_naive(points, normals, bones):
+    """Reference written from the rule's words, contact by contact: while a part has a pair
+    of contacts with normals over 90 degrees apart, each behind the other's tangent plane,
+    take its most opposed such pair (first in order on ties) and drop the contacts on the
+    side of that pair's axis with fewer members (a tie drops the second contact's side)."""
+    n = [v / np.linalg.norm(v) for v in np.asarray(normals, float)]
+    keep = [True] * len(points)
+    for b in sorted(set(bones.tolist())):
+        while True:
+            live = [k for k in range(len(points)) if keep[k] and bones[k] == b]
+            best = None
+            for i in live:
+                for j in live:
+                    d = float(n[i] @ n[j])
+                    if (d < 0 and float((points[j] - points[i]) @ n[i]) < 0
+                            and float((points[i] - points[j]) @ n[j]) < 0
+                            and (best is None or d < best[0])):
+                        best = (d, i, j)
+            if best is None:
+                break
+            _, i, j = best
+            axis = n[i] - n[j]
+            mine = [k for k in live if float(n[k] @ axis) >= 0]
+            if 2 * len(mine) < len(live):
+                mine = [k for k in live if k not in mine]
+            for k in live:
+                keep[k] = k in mine
+    return np.array(keep)
+
+
+def test_a_rigid_part_across_a_thin_wall_keeps_one_face():
+    """Analytic: one part touching both faces of a 3 mm wall (and its top) keeps one face's
+    contacts and cannot hold the wall's weight; two parts, one a face, pinch it and hold;
+    a part in a gap pushing two faces apart keeps both."""
+    pts, nrm = _wall()
+    one = np.zeros(len(pts), int)
+    keep = W.one_sided(pts, nrm, one)
+    x = nrm[keep, 0]
+    assert keep.sum() < len(pts) and not ((x > 0.5).any() and (x < -0.5).any())
+    com, load = np.array([0.0, -0.03, 0.0]), np.array([0.0, -0.5, 0.0])
+    assert W.can_hold(0.0, pts, nrm, com, load)  # v1: the straddle "squeezes" the wall
+    assert not W.can_hold(0.0, pts[keep], nrm[keep], com, load)
+    two = (nrm[:, 0] > 0.5).astype(int)  # the +x face is a second part: a real pinch
+    keep2 = W.one_sided(pts, nrm, two)
+    assert keep2[np.abs(nrm[:, 0]) == 1.0].all()  # both faces' contacts kept
+    assert W.can_hold(0.0, pts[keep2], nrm[keep2], com, load)
+    gap = np.array([[-0.01, 0, 0], [0.01, 0, 0]])  # faces 2 cm apart, normals into the gap
+    assert W.one_sided(gap, np.array([[1.0, 0, 0], [-1.0, 0, 0]]), np.zeros(2, int)).all()
+
+
+def test_one_sided_matches_a_naive_reference():
+    rng = np.random.default_rng(3)
+    dropped = 0
+    for trial in range(60):
+        k = int(rng.integers(2, 30))
+        d = rng.normal(size=(k, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        pts = 0.01 * d + 0.002 * rng.normal(size=(k, 3)) * (trial % 3 == 0)
+        nrm = d * rng.uniform(0.5, 2.0, size=(k, 1))  # pseudonormals need not be unit
+        bones = rng.integers(0, 3, size=k)
+        ours = W.one_sided(pts, nrm, bones)
+        assert (ours == _one_sided_naive(pts, nrm, bones)).all(), trial
+        dropped += int((~ours).sum())
+    assert dropped > 0
+
+
 # ------------------------------------------------------------------ the metric
 @pytest.fixture(scope="module")
 def fixture(tmp_path_factory):
@@ -163,14 +242,12 @@ def test_the_flat_hand_at_the_ground_truth_wrist_does_not_hold(fixture):
     assert _hold_qs(_flat(cylinder), cylinder, lib) == {"right": 0.0, "left": 0.0}
 
 
-@pytest.mark.xfail(strict=True, reason="known false positive (docs/physics_hold.md, 'Landed "
-                   "in s47'): a flat thumb lying across a thin rim touches both faces")
 def test_a_flat_thumb_across_a_thin_rim_does_not_hold(fixture):
     """Since SynthGRAB 2.4 the fixture's mug is grasped round its body, and the flat hand at
     that wrist lays its thumb across the 3 mm rim, 1.4 mm into it: its contacts map to the
-    rim's inner and outer faces, whose normals oppose, so the check finds a squeeze with
-    friction where a rigid thumb on a rim has none. The day the check handles edges, this
-    passes."""
+    rim's inner and outer faces, whose normals oppose. hold_qs v1 found a squeeze there (a
+    strict xfail from s47); v2 keeps each rigid bone's contacts on one side of the
+    material (``geometry.wrench.one_sided``), and a rigid thumb on a rim squeezes nothing."""
     lib, seqs = fixture
     mug = seqs[0]
     assert _hold_qs(_flat(mug), mug, lib)["right"] == 0.0
