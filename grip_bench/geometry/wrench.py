@@ -135,27 +135,32 @@ def hold_contacts(field, points: np.ndarray, sd: np.ndarray, bones: np.ndarray |
     near = sd <= C.HOLD_TOUCH
     _, closest, normal = field.exact_contacts(points[near])
     if bones is not None and len(closest):
-        keep = one_sided(closest, normal, np.asarray(bones)[near])
+        keep = one_sided(closest, normal, np.asarray(bones)[near], sd[near])
         closest, normal = closest[keep], normal[keep]
     return -float(sd.min()), closest, normal
 
 
-def one_sided(closest: np.ndarray, normals: np.ndarray, bones: np.ndarray) -> np.ndarray:
+def one_sided(closest: np.ndarray, normals: np.ndarray, bones: np.ndarray,
+              sd: np.ndarray) -> np.ndarray:
     """Which contacts (K,) a rigid part can press at once: a part whose contacts include a
     straddling pair (outward ``normals`` (K, 3) more than 90 degrees apart, each
     ``closest`` point (K, 3) behind the other's tangent plane: the object's material lies
     between them) lies across an edge or a thin wall, whose faces a rigid part cannot
-    squeeze together; it keeps the contacts on one side of its most opposed pair (the
-    side with more of them; a tie keeps the first contact's side), until no straddle is
-    left. A part in a gap between two faces (a finger between a handle and a body) pushes
-    them apart, not together: no straddle, every contact kept. ``bones`` (K,): each
-    contact's part."""
+    squeeze together. It keeps the contacts on the side of its most opposed pair's axis
+    where its deepest point (least ``sd`` (K,) m, where it actually touches) is, until no
+    straddle is left; when that point is inside the object (a thumb sunk into a 3 mm rim,
+    whose nearest face is no guide) the side with more contacts (a tie: the most opposed
+    pair's first contact's side). A
+    part in a gap between two faces (a finger between a handle and a body) pushes them
+    apart, not together: no straddle, every contact kept. ``bones`` (K,): each contact's
+    part. The reading and the measured effect: docs/physics_hold.md, "Landed in s48"."""
     p = np.asarray(closest, np.float64).reshape(-1, 3)
     n = np.asarray(normals, np.float64).reshape(-1, 3)
     n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    bones, sd = np.asarray(bones), np.asarray(sd, np.float64)
     keep = np.ones(len(p), bool)
     for b in np.unique(bones):
-        idx = np.flatnonzero(np.asarray(bones) == b)
+        idx = np.flatnonzero(bones == b)
         while len(idx) > 1:
             dots = n[idx] @ n[idx].T
             # behind[i, j]: contact j lies behind contact i's tangent plane
@@ -164,8 +169,11 @@ def one_sided(closest: np.ndarray, normals: np.ndarray, bones: np.ndarray) -> np
             if not straddle.any():
                 break
             i, j = np.unravel_index(int(np.argmin(np.where(straddle, dots, np.inf))), dots.shape)
-            side = n[idx] @ (n[idx][i] - n[idx][j]) >= 0.0  # i's side of the pair
-            if side.sum() * 2 < len(idx):  # the other side has more contacts
+            side = n[idx] @ (n[idx][i] - n[idx][j]) >= 0.0
+            deepest = int(np.argmin(sd[idx]))
+            if sd[idx[deepest]] >= 0.0:  # the side it touches
+                side = side == side[deepest]
+            elif side.sum() * 2 < len(idx):  # sunk into the part: the side with more contacts
                 side = ~side
             keep[idx[~side]] = False
             idx = idx[side]

@@ -141,11 +141,12 @@ def _wall(n: int = 5, half: float = 0.0015):
     return np.concatenate([*out, top]), np.concatenate([*nrm, top_n])
 
 
-def _one_sided_naive(points, normals, bones):
+def _one_sided_naive(points, normals, bones, sd):
     """Reference written from the rule's words, contact by contact: while a part has a pair
     of contacts with normals over 90 degrees apart, each behind the other's tangent plane,
     take its most opposed such pair (first in order on ties) and drop the contacts on the
-    side of that pair's axis with fewer members (a tie drops the second contact's side)."""
+    other side of that pair's axis than the part's deepest contact; when that contact is
+    inside the object, the side with fewer contacts (a tie: the second contact's)."""
     n = [v / np.linalg.norm(v) for v in np.asarray(normals, float)]
     keep = [True] * len(points)
     for b in sorted(set(bones.tolist())):
@@ -163,8 +164,11 @@ def _one_sided_naive(points, normals, bones):
                 break
             _, i, j = best
             axis = n[i] - n[j]
+            deepest = min(live, key=lambda k: sd[k])
             mine = [k for k in live if float(n[k] @ axis) >= 0]
-            if 2 * len(mine) < len(live):
+            if sd[deepest] >= 0:
+                mine = [k for k in live if (float(n[k] @ axis) >= 0) == (float(n[deepest] @ axis) >= 0)]
+            elif 2 * len(mine) < len(live):
                 mine = [k for k in live if k not in mine]
             for k in live:
                 keep[k] = k in mine
@@ -172,23 +176,27 @@ def _one_sided_naive(points, normals, bones):
 
 
 def test_a_rigid_part_across_a_thin_wall_keeps_one_face():
-    """Analytic: one part touching both faces of a 3 mm wall (and its top) keeps one face's
-    contacts and cannot hold the wall's weight; two parts, one a face, pinch it and hold;
-    a part in a gap pushing two faces apart keeps both."""
+    """Analytic: one part touching both faces of a 3 mm wall (and its top) keeps the contacts
+    on its touching point's side, and once sunk into the wall those on the side with more
+    contacts; either way it cannot hold the wall's weight (v1 found a squeeze). A part on
+    each face pinches it and holds; a part in a gap pushing two faces apart keeps both."""
     pts, nrm = _wall()
-    one = np.zeros(len(pts), int)
-    keep = W.one_sided(pts, nrm, one)
-    x = nrm[keep, 0]
-    assert keep.sum() < len(pts) and not ((x > 0.5).any() and (x < -0.5).any())
     com, load = np.array([0.0, -0.03, 0.0]), np.array([0.0, -0.5, 0.0])
+    one = np.zeros(len(pts), int)
     assert W.can_hold(0.0, pts, nrm, com, load)  # v1: the straddle "squeezes" the wall
+    sd = np.linspace(0.002, 0.0, len(pts))  # touching at the last top contact (+x lean)
+    keep = W.one_sided(pts, nrm, one, sd)
+    assert keep[-1] and keep[nrm[:, 0] == 1.0].all() and not keep[nrm[:, 0] == -1.0].any()
     assert not W.can_hold(0.0, pts[keep], nrm[keep], com, load)
-    two = (nrm[:, 0] > 0.5).astype(int)  # the +x face is a second part: a real pinch
-    keep2 = W.one_sided(pts, nrm, two)
-    assert keep2[np.abs(nrm[:, 0]) == 1.0].all()  # both faces' contacts kept
-    assert W.can_hold(0.0, pts[keep2], nrm[keep2], com, load)
+    keep = W.one_sided(pts, nrm, one, sd - 0.0005)  # 0.5 mm into the wall: -x face and top
+    assert keep[nrm[:, 0] == -1.0].all() and not keep[nrm[:, 0] == 1.0].any()
+    assert not W.can_hold(0.0, pts[keep], nrm[keep], com, load)
+    parts = np.where(np.abs(nrm[:, 0]) == 1.0, (nrm[:, 0] > 0).astype(int), 2)
+    keep = W.one_sided(pts, nrm, parts, sd)  # a part on each face and one on top: a pinch
+    assert keep.all() and W.can_hold(0.0, pts, nrm, com, load)
     gap = np.array([[-0.01, 0, 0], [0.01, 0, 0]])  # faces 2 cm apart, normals into the gap
-    assert W.one_sided(gap, np.array([[1.0, 0, 0], [-1.0, 0, 0]]), np.zeros(2, int)).all()
+    assert W.one_sided(gap, np.array([[1.0, 0, 0], [-1.0, 0, 0]]), np.zeros(2, int),
+                       np.zeros(2)).all()
 
 
 def test_one_sided_matches_a_naive_reference():
@@ -201,8 +209,9 @@ def test_one_sided_matches_a_naive_reference():
         pts = 0.01 * d + 0.002 * rng.normal(size=(k, 3)) * (trial % 3 == 0)
         nrm = d * rng.uniform(0.5, 2.0, size=(k, 1))  # pseudonormals need not be unit
         bones = rng.integers(0, 3, size=k)
-        ours = W.one_sided(pts, nrm, bones)
-        assert (ours == _one_sided_naive(pts, nrm, bones)).all(), trial
+        sd = rng.uniform(-0.001, 0.002, size=k)
+        ours = W.one_sided(pts, nrm, bones, sd)
+        assert (ours == _one_sided_naive(pts, nrm, bones, sd)).all(), trial
         dropped += int((~ours).sum())
     assert dropped > 0
 
