@@ -167,7 +167,8 @@ def _one_sided_naive(points, normals, bones, sd):
             deepest = min(live, key=lambda k: sd[k])
             mine = [k for k in live if float(n[k] @ axis) >= 0]
             if sd[deepest] >= 0:
-                mine = [k for k in live if (float(n[k] @ axis) >= 0) == (float(n[deepest] @ axis) >= 0)]
+                touched = float(n[deepest] @ axis) >= 0
+                mine = [k for k in live if (float(n[k] @ axis) >= 0) == touched]
             elif 2 * len(mine) < len(live):
                 mine = [k for k in live if k not in mine]
             for k in live:
