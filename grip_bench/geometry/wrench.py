@@ -150,10 +150,10 @@ def one_sided(closest: np.ndarray, normals: np.ndarray, bones: np.ndarray,
     where its deepest point (least ``sd`` (K,) m, where it actually touches) is, until no
     straddle is left; when that point is inside the object (a thumb sunk into a 3 mm rim,
     whose nearest face is no guide) the side with more contacts (a tie: the most opposed
-    pair's first contact's side). A
-    part in a gap between two faces (a finger between a handle and a body) pushes them
-    apart, not together: no straddle, every contact kept. ``bones`` (K,): each contact's
-    part. The reading and the measured effect: docs/physics_hold.md, "Landed in s48"."""
+    pair's first contact's side). A part in a gap between two faces (a finger between a
+    handle and a body) pushes them apart, not together: no straddle, every contact kept.
+    ``bones`` (K,): each contact's part. The reading and the measured effect:
+    docs/physics_hold.md, "Landed in s48"."""
     p = np.asarray(closest, np.float64).reshape(-1, 3)
     n = np.asarray(normals, np.float64).reshape(-1, 3)
     n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)

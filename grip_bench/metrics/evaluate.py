@@ -548,14 +548,15 @@ def _qs_contacts(pair: SequencePair, t: int) -> tuple | None:
     key = (t, "quasi-static contacts")
     if key not in pair._sims:
         sides = [s for s in pair.options.sides if pair.held(s)[t]]
-        local = np.concatenate([pair.track("pred", s).local[t] for s in sides])
-        sd = np.concatenate([pair.track("pred", s).sd[t] for s in sides])  # exact below 5 mm
+        tracks = [pair.track("pred", s) for s in sides]
+        local = np.concatenate([tr.local[t] for tr in tracks])
+        sd = np.concatenate([tr.sd[t] for tr in tracks])  # exact below 5 mm
         if not np.isfinite(sd).all():
             pair._sims[key] = None
             return None
         # each hand's bones are rigid parts of their own (hold_qs v2: one side of the material)
-        bones = np.concatenate([_bone_ids(pair.poser, s, len(pair.track("pred", s).local[t]))
-                                + 100 * k for k, s in enumerate(sides)])
+        bones = np.concatenate([_bone_ids(pair.poser, s, len(tr.local[t])) + 100 * k
+                                for k, (s, tr) in enumerate(zip(sides, tracks, strict=True))])
         mass, com, _ = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)
         pair._sims[key] = (*hold_contacts(pair.field, local, sd, bones), com, mass,
                            pair.pred_rotations[t])
