@@ -796,11 +796,12 @@ def _held(res: list[HoldResult | None]) -> np.ndarray:
 _HOLD_DEF = ("the articulated hand (one body per bone, capped position servos, wrist fixed), "
              "its fingers within 2 mm tightened 1.5 mm, holds the object through 0.2 s of "
              "settling and 1 s under {g} (moves < 2 cm, turns < 15 degrees, settles <= 5 mm, "
-             "no hand vertex starts > 5 mm inside; diverged = failed; mu = {mu}; [run] "
-             "physics_frames held frames)")
+             "no hand vertex starts > 5 mm inside, the settled contacts push the hand into the "
+             "object with <= 50 object weights (v3: not a finger wedged in a thin wall); "
+             "diverged = failed; mu = {mu}; [run] physics_frames held frames)")
 
 
-@metric("hold_sim", "Articulated hold (MuJoCo)", "%", 1e2, True, "held", 2,
+@metric("hold_sim", "Articulated hold (MuJoCo)", "%", 1e2, True, "held", 3,
         "share of tested held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=1),
         leaderboard=False)
 def m_hold_sim(pair: SequencePair, side: str) -> Measured:
@@ -845,12 +846,12 @@ def _median_capped(idx: np.ndarray, disp: list[float | None]) -> Measured:
                     frame_rows=False)
 
 
-_friction_rows("hold_sim", "Articulated hold", 2, "share of tested held frames where "
+_friction_rows("hold_sim", "Articulated hold", 3, "share of tested held frames where "
                + _HOLD_DEF.replace("{g}", "the frame's gravity"),
                _sim_share)
 
 
-@metric("hold_sim_axes", "Articulated hold (6 gravity directions)", "%", 1e2, True, "held", 2,
+@metric("hold_sim_axes", "Articulated hold (6 gravity directions)", "%", 1e2, True, "held", 3,
         "robustness of hold_sim (physics table only): share of (frame, direction) tests, "
         "gravity along each of the world's six axis directions after one shared settle, where "
         + _HOLD_DEF.format(g="that gravity", mu=1), leaderboard=False)

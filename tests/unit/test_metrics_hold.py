@@ -96,3 +96,61 @@ def test_static_hands_sunk_past_the_depth_bound_do_not_hold():
 
 def test_support_test_free_fall_reference():
     assert abs(C.SIM_FREE_FALL_5 - 0.00255) < 1e-5
+
+
+def _shell(wall: float) -> trimesh.Trimesh:
+    """Hemispherical shell, outer radius 5 cm, open side up (+y)."""
+    from grip_bench.geometry.meshes import from_manifold, to_manifold
+
+    outer = trimesh.creation.icosphere(4, radius=0.05)
+    inner = trimesh.creation.icosphere(4, radius=0.05 - wall)
+    lid = trimesh.creation.box(extents=[0.2, 0.1, 0.2])
+    lid.apply_translation([0, 0.05, 0])
+    return from_manifold(to_manifold(outer) - to_manifold(inner) - to_manifold(lid))
+
+
+def _plate(x0: float, x1: float) -> trimesh.Trimesh:
+    """A static "hand piece": a plate spanning x0..x1 (m) on the shell's +x side."""
+    p = trimesh.creation.box(extents=[x1 - x0, 0.01, 0.01])
+    p.apply_translation([(x0 + x1) / 2, -0.004, 0.0])
+    return p
+
+
+def _inward_at_start(plate: trimesh.Trimesh, shell: trimesh.Trimesh) -> tuple[float, int]:
+    import mujoco
+
+    scene = H.static_scene([plate], shell, (np.eye(3), np.zeros(3)))
+    data = mujoco.MjData(scene.model)
+    mujoco.mj_forward(scene.model, data)
+    return H.inward_force(scene.model, data, scene.patches), int(data.ncon)
+
+
+def test_inward_force_counts_a_piece_pushed_in_through_the_back_of_a_prism():
+    """The wedge rule's measure (docs/physics_hold.md, "Measured in s49"). An 8 mm wall
+    collides as 3 mm prisms under each face (PIECE_DEPTH: they do not overlap). A thin plate
+    0.4 mm into the outer face is pushed out the way it came: no inward force. A thin plate
+    inside the outer prism near its back (2.8-3.3 mm in) leaves it the short way, deeper into
+    the wall: that contact pushes the hand into the object, its force counted in weights."""
+    shell = _shell(0.008)
+    assert set(np.round(H.object_pieces(shell).depth, 6)) == {C.PIECE_DEPTH}
+    outside, n_out = _inward_at_start(_plate(0.0496, 0.0520), shell)
+    assert n_out > 0 and outside == 0.0
+    behind, n_in = _inward_at_start(_plate(0.0467, 0.0472), shell)
+    assert n_in > 0 and behind > 0.0
+
+
+def test_the_wedge_rule_fails_a_scene_past_its_bound(monkeypatch):
+    """hold() fails a settled scene whose inward force exceeds HOLD_WEDGE_WEIGHTS and keeps
+    its displacements: the cube pinch holds with no inward force, and fails when the bound is
+    below it."""
+    cube = trimesh.creation.box(extents=[0.04] * 3)
+    fingers = []
+    for sign in (1, -1):
+        f = trimesh.creation.box(extents=[0.02, 0.015, 0.015])
+        f.apply_translation([sign * (0.03 - 0.0005), 0, 0])
+        fingers.append(f)
+    held = H.static_hold(fingers, cube, (np.eye(3), np.zeros(3)))
+    assert held.held and held.wedge == 0.0
+    monkeypatch.setattr(H, "HOLD_WEDGE_WEIGHTS", -1.0)
+    wedged = H.static_hold(fingers, cube, (np.eye(3), np.zeros(3)))
+    assert not wedged.held and wedged.displacement == held.displacement
