@@ -591,9 +591,10 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
 # whose contacts push the hands *into* the object with more than this many times the
 # object's weight holds by a finger wedged inside a thin wall (the far face's prisms push it
 # in, the near face's push it out, and the friction of the two glues the object), not by a
-# grasp. Measured on SynthGRAB 2.4's ground truth: 1,300-21,600 weights on the test split's
-# wedged frames (110-16,700 on val), at most 2.8 on every other (10.9 on val). Kept here,
-# not in core.constants: an edit there renews every cache key, data included.
+# grasp. Measured on SynthGRAB 2.4's ground truth (every tested frame): 21,200-22,200 weights
+# on the test split's held wedged frames, at most 2.5 on every other; on val 8,400-13,200
+# and at most 8.3 (and 77 on a frame that falls anyway). Kept here, not in core.constants:
+# an edit there renews every cache key, data included.
 HOLD_WEDGE_WEIGHTS = 50.0
 
 
