@@ -58,14 +58,19 @@ def test_free_fall_stop_keeps_the_verdict_and_the_capped_displacement(monkeypatc
     assert early[1].displacement == full[1].displacement  # a held object runs the whole second
 
 
-def test_cube_pinched_by_two_fingers_holds():
-    cube = trimesh.creation.box(extents=[0.04] * 3)
+def _pinching_fingers(depth: float = 0.0005) -> list[trimesh.Trimesh]:
+    """Two static box fingers ``depth`` (m) into opposite faces of a 4 cm cube at the origin."""
     fingers = []
     for sign in (1, -1):
         f = trimesh.creation.box(extents=[0.02, 0.015, 0.015])
-        f.apply_translation([sign * (0.03 - 0.0005), 0, 0])  # 0.5 mm into the cube
+        f.apply_translation([sign * (0.03 - depth), 0, 0])
         fingers.append(f)
-    r = H.static_hold(fingers, cube, (np.eye(3), np.zeros(3)))
+    return fingers
+
+
+def test_cube_pinched_by_two_fingers_holds():
+    cube = trimesh.creation.box(extents=[0.04] * 3)
+    r = H.static_hold(_pinching_fingers(), cube, (np.eye(3), np.zeros(3)))
     assert r.held and r.displacement < 0.001
 
 
@@ -144,13 +149,8 @@ def test_the_wedge_rule_fails_a_scene_past_its_bound(monkeypatch):
     its displacements: the cube pinch holds with no inward force, and fails when the bound is
     below it."""
     cube = trimesh.creation.box(extents=[0.04] * 3)
-    fingers = []
-    for sign in (1, -1):
-        f = trimesh.creation.box(extents=[0.02, 0.015, 0.015])
-        f.apply_translation([sign * (0.03 - 0.0005), 0, 0])
-        fingers.append(f)
-    held = H.static_hold(fingers, cube, (np.eye(3), np.zeros(3)))
+    held = H.static_hold(_pinching_fingers(), cube, (np.eye(3), np.zeros(3)))
     assert held.held and held.wedge == 0.0
     monkeypatch.setattr(H, "HOLD_WEDGE_WEIGHTS", -1.0)
-    wedged = H.static_hold(fingers, cube, (np.eye(3), np.zeros(3)))
+    wedged = H.static_hold(_pinching_fingers(), cube, (np.eye(3), np.zeros(3)))
     assert not wedged.held and wedged.displacement == held.displacement
