@@ -19,8 +19,11 @@ object's exact distance field at the contact). Reported per frame: the hold verd
 full test, world gravity, mu = 1), the contacts, their summed normal force over the object's
 weight, and the contacts and force share that push inward. A wedged finger shows as a
 force of thousands of times the weight with a large inward share; the servos' capped
-squeeze gives a few to a few tens of times. A diagnostic for docs/physics_hold.md
-("Measured in s49"); the test is unchanged.
+squeeze gives a few to a few tens of times. Beside them, ``rule_weights``: the inward force
+the verdict's wedge rule reads (``metrics.hold.inward_force``, each contact judged by its
+own object piece's surface normal, unambiguous inside a thin wall where the distance
+field's gradient is not; more than ``HOLD_WEDGE_WEIGHTS`` fails the frame since s49).
+A diagnostic for docs/physics_hold.md ("Measured in s49").
 
     python tools/hold_wedge.py DATA [--split test] [--every 1] [--json]
 """
@@ -49,7 +52,8 @@ def settled_contacts(pair, t: int) -> dict | None:
     scene = hold_scene(pair, t)
     if scene is None:
         return None
-    held = H.hold(scene, pair.options.up)[0].held
+    result = H.hold(scene, pair.options.up)[0]
+    held = result.held
     model = scene.model
     data = mujoco.MjData(model)
     up = np.asarray(pair.options.up, np.float64)
@@ -57,7 +61,7 @@ def settled_contacts(pair, t: int) -> dict | None:
     try:
         mujoco.mj_forward(model, data)
         if not H._settle(model, data, scene.targets):
-            return {"held": held, "diverged": True}
+            return {"held": held, "diverged": True, "rule_weights": float(result.wedge)}
         mujoco.mj_forward(model, data)
     finally:
         model.opt.gravity[:] = H.gravity_along(None, up)
@@ -77,7 +81,8 @@ def settled_contacts(pair, t: int) -> dict | None:
     return {"held": bool(held), "diverged": False, "contacts": int(data.ncon),
             "force_over_weight": float(force.sum() / weight),
             "inward_contacts": int(inward.sum()),
-            "inward_share": float(force[inward].sum() / force.sum()) if force.sum() > 0 else 0.0}
+            "inward_share": float(force[inward].sum() / force.sum()) if force.sum() > 0 else 0.0,
+            "rule_weights": float(result.wedge)}
 
 
 def summarise(rows: list[dict]) -> dict:
