@@ -292,14 +292,20 @@ def _add_object(spec: mujoco.MjSpec, obj: trimesh.Trimesh, pieces: list[np.ndarr
     _add_pieces(spec, add_free_object(spec, obj, pose, density), pieces, "obj", hand=False)
 
 
+_Patch = tuple[np.ndarray, np.ndarray]  # a piece's surface vertices and normals (n, 3)
+
+
 def _object_world_pieces(obj: trimesh.Trimesh, pose: tuple[np.ndarray, np.ndarray] | None
-                         ) -> tuple[list[np.ndarray], np.ndarray]:
-    """The object's pieces in its own frame and its vertices in the world (N, 3)."""
+                         ) -> tuple[list[np.ndarray], np.ndarray, list[_Patch]]:
+    """The object's pieces in its own frame, its vertices in the world (N, 3), and each
+    piece's surface patch (vertices, outward vertex normals; object frame): where the
+    piece's outside is, for :func:`inward_force`."""
     pieces = object_pieces(obj)
     v = np.asarray(obj.vertices, dtype=np.float64)
-    local = pieces.points(v, vertex_normals(v, obj.faces))
+    n = vertex_normals(v, obj.faces)
+    local = pieces.points(v, n)
     world = v if pose is None else v @ np.asarray(pose[0]).T + np.asarray(pose[1])
-    return local, world
+    return local, world, [(v[ids], n[ids]) for ids in pieces.vertex_ids]
 
 
 def _to_world(local: list[np.ndarray], pose: tuple[np.ndarray, np.ndarray] | None
@@ -317,7 +323,7 @@ def static_scene(hand_meshes: list[trimesh.Trimesh], obj: trimesh.Trimesh,
     """Static "hands" (any closed meshes, world frame, bounded-error pieces each) and the free
     object (own frame, placed by ``obj_pose`` = (R, t), world = R @ local + t)."""
     spec = _spec(up)
-    local, obj_world = _object_world_pieces(obj, obj_pose)
+    local, obj_world, patches = _object_world_pieces(obj, obj_pose)
     hand_world = []
     for i, h in enumerate(hand_meshes):
         v = np.asarray(h.vertices, dtype=np.float64)
@@ -326,7 +332,7 @@ def static_scene(hand_meshes: list[trimesh.Trimesh], obj: trimesh.Trimesh,
         _add_pieces(spec, spec.worldbody, [p for p, k in zip(pts, keep, strict=True) if k],
                     f"hand{i}_", hand=True)
         hand_world.extend(pts)
-    patches = _add_object_pieces(spec, obj, obj_pose, density, local, hand_world)
+    patches = _add_object_pieces(spec, obj, obj_pose, density, local, patches, hand_world)
     return Scene(spec.compile(), np.zeros(0), len(hand_meshes),
                  depth=_mesh_depth(hand_meshes, obj, obj_pose), patches=patches)
 
@@ -353,25 +359,15 @@ def _select_object(local: list[np.ndarray], pose: tuple[np.ndarray, np.ndarray] 
     return [i for i, k in enumerate(keep) if k] or [0]
 
 
-def _object_patches(obj: trimesh.Trimesh, ids: list[int]
-                    ) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
-    """The surface patches (vertices, outward vertex normals; object frame) of the object's
-    pieces ``ids``: where each piece's outside is, for :func:`inward_force`."""
-    v = np.asarray(obj.vertices, dtype=np.float64)
-    n = vertex_normals(v, obj.faces)
-    pieces = object_pieces(obj)
-    return tuple((v[pieces.vertex_ids[i]], n[pieces.vertex_ids[i]]) for i in ids)
-
-
 def _add_object_pieces(spec: mujoco.MjSpec, obj: trimesh.Trimesh,
                        pose: tuple[np.ndarray, np.ndarray] | None, density: float,
-                       local: list[np.ndarray], hand_world: list[np.ndarray]
-                       ) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+                       local: list[np.ndarray], patches: list[_Patch],
+                       hand_world: list[np.ndarray]) -> tuple[_Patch, ...]:
     """The free object with its pieces within reach of ``hand_world``; returns their
-    patches (:func:`_object_patches`)."""
+    surface patches (of :func:`_object_world_pieces`), in the order their geoms were added."""
     ids = _select_object(local, pose, hand_world)
     _add_object(spec, obj, [local[i] for i in ids], pose, density)
-    return _object_patches(obj, ids)
+    return tuple(patches[i] for i in ids)
 
 
 def hand_scene(hands: list[PosedHand], obj: trimesh.Trimesh,
@@ -382,13 +378,13 @@ def hand_scene(hands: list[PosedHand], obj: trimesh.Trimesh,
     import mujoco
 
     spec = _spec(up)
-    local, obj_world = _object_world_pieces(obj, obj_pose)
+    local, obj_world, patches = _object_world_pieces(obj, obj_pose)
     hand_world, error = [], 0.0
     for k, hand in enumerate(hands):
         pts, err = _add_hand(spec, hand, f"h{k}", obj_world)
         hand_world.extend(pts)
         error = max(error, err)
-    patches = _add_object_pieces(spec, obj, obj_pose, density, local, hand_world)
+    patches = _add_object_pieces(spec, obj, obj_pose, density, local, patches, hand_world)
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
