@@ -72,8 +72,10 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
 def reason(scene, res) -> str:
     """Why a hold failed, in the order :func:`~grip_bench.metrics.hold.hold` checks: the
     run diverged, a hand more than ``HOLD_MAX_DEPTH`` inside, the settle past
-    ``HOLD_SETTLE_FAIL``, else the object moved or turned during the hold."""
+    ``HOLD_SETTLE_FAIL``, a finger wedged (``HOLD_WEDGE_WEIGHTS``), else the object moved
+    or turned during the hold."""
     from grip_bench.core import constants as C
+    from grip_bench.metrics import hold as H
 
     if res.diverged:
         return "diverged"
@@ -81,6 +83,8 @@ def reason(scene, res) -> str:
         return "hand too deep"
     if res.settle > C.HOLD_SETTLE_FAIL:
         return "settle"
+    if res.wedge > H.HOLD_WEDGE_WEIGHTS:
+        return "wedged"
     return "moved during the hold"
 
 

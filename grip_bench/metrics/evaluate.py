@@ -73,8 +73,8 @@ if TYPE_CHECKING:
 # the metrics ``EvalOptions.physics`` switches off: MuJoCo's and the quasi-static hold check,
 # all on the same drawn held frames (``physics_frames``)
 PHYSICS_METRICS = ("hold_qs", "hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes", "sim_stable",
-                   "sim_disp", "hold_sim", "hold_sim_disp", "hold_sim_settle", "hold_sim_mu05",
-                   "hold_sim_mu3", "hold_sim_axes")
+                   "sim_disp", "hold_sim", "hold_sim_disp", "hold_sim_settle", "hold_sim_ruled",
+                   "hold_sim_mu05", "hold_sim_mu3", "hold_sim_axes")
 
 
 @dataclass(frozen=True)
@@ -813,9 +813,11 @@ def _sim_share(pair: SequencePair, side: str, mu: float) -> Measured:
     return Measured(idx, _held(res))
 
 
-@metric("hold_sim_disp", "Articulated hold displacement", "mm", 1e3, False, "held", 1,
+@metric("hold_sim_disp", "Articulated hold displacement", "mm", 1e3, False, "held", 2,
         "object displacement during hold_sim's 1 s under gravity, capped at 10 cm (a diverged "
-        "run counts as 10 cm); a sequence's value is the median of its tested frames",
+        "run counts as 10 cm; v2: so does a frame failed before the hold by the depth, settle "
+        "or wedge rule, whose hold is not simulated); a sequence's value is the median of its "
+        "tested frames",
         leaderboard=False)
 def m_hold_sim_disp(pair: SequencePair, side: str) -> Measured:
     idx, res = _hold_sim(pair, side)
@@ -833,6 +835,19 @@ def m_hold_sim_settle(pair: SequencePair, side: str) -> Measured:
     return _median_capped(idx, [None if r is None else
                                 (r.settle if np.isfinite(r.settle) else C.HOLD_DISP_CAP)
                                 for r in res])
+
+
+@metric("hold_sim_ruled", "Articulated hold ruled out", "%", 1e2, False, "held", 1,
+        "share of hold_sim's tested frames failed after the settle, before the hold, by a "
+        "rule: a hand vertex starting > 5 mm inside the object, a settle > 5 mm, or settled "
+        "contacts pushing the hand into the object with > 50 object weights (a finger wedged "
+        "in a thin wall); a diverged settle is not counted here (it is a failure of its own); "
+        "physics table only, a diagnostic of how often the rules decide hold_sim",
+        leaderboard=False)
+def m_hold_sim_ruled(pair: SequencePair, side: str) -> Measured:
+    idx, res = _hold_sim(pair, side)
+    return Measured(idx, np.asarray([np.nan if r is None else float(r.ruled_out) for r in res],
+                                    dtype=np.float64))
 
 
 def _median_capped(idx: np.ndarray, disp: list[float | None]) -> Measured:

@@ -20,7 +20,9 @@ Two tests share one scene per frame:
   during the hold, and no hand vertex started more than ``HOLD_MAX_DEPTH`` inside the
   object (the force check's rule: the damped settle lets a penetrating hand wedge the
   object instead of pushing it out, so the settle rule alone passed fingers closed 0.4 rad
-  into it). A diverged run is a failure with the capped displacement, never dropped.
+  into it). A diverged run is a failure with the capped displacement, never dropped; so
+  is a frame that fails a rule before the hold (depth, settle, wedge; since s50 its hold is
+  not simulated: a sunk or wedged hand's small displacement measured no grasp).
 - **Support test** (GRIP supp. Sec. 11): from rest, under gravity, with the hand as it is,
   the object moves < 1 mm in 5 steps of 1/240 s. Free fall alone moves it 2.55 mm
   (``SIM_FREE_FALL_5``), so the test tells "something supports it" from "nothing does".
@@ -78,7 +80,8 @@ class HoldResult:
     least ``HOLD_DISP_CAP`` where the object fell free and the run stopped early);
     ``held`` the verdict; ``diverged`` NaN or runaway velocity; ``wedge`` the settled
     contacts' force pushing the hands *into* the object, in object weights (see
-    :func:`inward_force`; NaN when not measured)."""
+    :func:`inward_force`; NaN when not measured); ``ruled_out`` failed after the settle,
+    before the hold, by the depth, settle or wedge rule (its hold not simulated)."""
 
     settle: float
     displacement: float
@@ -86,6 +89,7 @@ class HoldResult:
     held: bool
     diverged: bool
     wedge: float = float("nan")
+    ruled_out: bool = False
 
 
 @dataclass(frozen=True)
@@ -547,8 +551,11 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
     ``friction``: sliding friction of every geom for this run. A scene whose hands start
     more than ``HOLD_MAX_DEPTH`` inside the object, or whose settled contacts push the hands
     into it with more than ``HOLD_WEDGE_WEIGHTS`` object weights (:func:`inward_force`: a
-    finger wedged inside a thin wall), is simulated (its displacements are measured) but
-    never held."""
+    finger wedged inside a thin wall), or whose settle moved the object more than
+    ``HOLD_SETTLE_FAIL``, has failed before the hold: its holds are not simulated and
+    report the capped displacement and 180 degrees, as a diverged run's (since s50; such
+    a hand's small displacement came from wedging or sinking into the object, not from
+    a grasp, and flattered ``hold_sim_disp``)."""
     import mujoco
 
     model = scene.model
@@ -564,6 +571,9 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
         p0, q0 = _pose_of(model, data)
         settle = float(np.linalg.norm(p0 - start))
         wedge = inward_force(model, data, scene.patches, up)
+        if not _may_hold(scene.depth, settle, wedge):
+            return [HoldResult(settle, C.HOLD_DISP_CAP, 180.0, False, False, wedge, True)
+                    for _ in directions]
         out = []
         for d in directions:
             run = mujoco.MjData(model)
@@ -574,8 +584,7 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
                 continue
             p1, q1 = _pose_of(model, run)
             disp, rot = float(np.linalg.norm(p1 - p0)), _angle(q0, q1)
-            ok = (scene.depth <= C.HOLD_MAX_DEPTH and settle <= C.HOLD_SETTLE_FAIL
-                  and not wedge > HOLD_WEDGE_WEIGHTS and disp < C.HOLD_DISP and rot < C.HOLD_ROT)
+            ok = disp < C.HOLD_DISP and rot < C.HOLD_ROT
             out.append(HoldResult(settle, disp, rot, bool(ok), False, wedge))
         return out
     finally:
@@ -592,6 +601,14 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
 # and at most 8.3 (and 77 on a frame that falls anyway). Kept here, not in core.constants:
 # an edit there renews every cache key, data included.
 HOLD_WEDGE_WEIGHTS = 50.0
+
+
+def _may_hold(depth: float, settle: float, wedge: float) -> bool:
+    """The rules a settled scene must pass before its hold can count: no hand vertex more
+    than ``HOLD_MAX_DEPTH`` inside, a settle of at most ``HOLD_SETTLE_FAIL``, and no more
+    than ``HOLD_WEDGE_WEIGHTS`` of inward force (NaN, not measured, passes)."""
+    return (depth <= C.HOLD_MAX_DEPTH and settle <= C.HOLD_SETTLE_FAIL
+            and not wedge > HOLD_WEDGE_WEIGHTS)
 
 
 def inward_force(model: mujoco.MjModel, data: mujoco.MjData,

@@ -78,7 +78,9 @@ def test_cube_pinched_by_two_fingers_holds():
 def test_static_hands_sunk_past_the_depth_bound_do_not_hold():
     """The depth rule of the articulated test holds for static hands too: pads 6 mm into
     the cube wedge it (it settles and stays, as at 0.5 mm), but a hand vertex deeper than
-    HOLD_MAX_DEPTH fails the test; 4 mm in is within the bound and holds."""
+    HOLD_MAX_DEPTH fails the test before its hold (not simulated: the capped displacement,
+    as a diverged run's, not the wedged object's near-zero one); 4 mm in is within the
+    bound and holds."""
     cube = trimesh.creation.box(extents=[0.04] * 3)
     pose = (np.eye(3), np.array([0.1, 0.2, 0.3]))  # placed away from the origin
 
@@ -94,7 +96,8 @@ def test_static_hands_sunk_past_the_depth_bound_do_not_hold():
     assert deep.depth == pytest.approx(0.006, abs=1e-9)
     sunk = H.hold(deep)[0]
     assert not sunk.held and not sunk.diverged
-    assert sunk.displacement < C.HOLD_DISP and sunk.settle <= C.HOLD_SETTLE_FAIL  # wedged
+    assert sunk.settle <= C.HOLD_SETTLE_FAIL  # wedged: it settles and stays
+    assert (sunk.displacement, sunk.rotation) == (C.HOLD_DISP_CAP, 180.0) and sunk.ruled_out
     within = H.static_hold(pads(0.004), cube, pose)
     assert within.held and within.displacement < 0.001
 
@@ -145,12 +148,14 @@ def test_inward_force_counts_a_piece_pushed_in_through_the_back_of_a_prism():
 
 
 def test_the_wedge_rule_fails_a_scene_past_its_bound(monkeypatch):
-    """hold() fails a settled scene whose inward force exceeds HOLD_WEDGE_WEIGHTS and keeps
-    its displacements: the cube pinch holds with no inward force, and fails when the bound is
-    below it."""
+    """hold() fails a settled scene whose inward force exceeds HOLD_WEDGE_WEIGHTS before its
+    hold (not simulated: the capped displacement, as a diverged run's): the cube pinch holds
+    with no inward force, and fails when the bound is below it, with the same settle."""
     cube = trimesh.creation.box(extents=[0.04] * 3)
     held = H.static_hold(_pinching_fingers(), cube, (np.eye(3), np.zeros(3)))
-    assert held.held and held.wedge == 0.0
+    assert held.held and held.wedge == 0.0 and not held.ruled_out
     monkeypatch.setattr(H, "HOLD_WEDGE_WEIGHTS", -1.0)
     wedged = H.static_hold(_pinching_fingers(), cube, (np.eye(3), np.zeros(3)))
-    assert not wedged.held and wedged.displacement == held.displacement
+    assert not wedged.held and not wedged.diverged and wedged.settle == held.settle
+    assert (wedged.displacement, wedged.rotation) == (C.HOLD_DISP_CAP, 180.0)
+    assert wedged.ruled_out

@@ -336,7 +336,7 @@ def test_a_hand_starting_deeper_than_the_bound_is_never_held(fixture):
     """The articulated test fails a hand whose deepest vertex starts more than
     ``HOLD_MAX_DEPTH`` inside (the force check's rule: the damped settle lets penetrating
     fingers wedge the object). The scene's depth is the posed hands' deepest signed
-    distance; the simulation itself, and so the displacements, do not change."""
+    distance; the settle does not change, and the hold is not simulated (since s50)."""
     from dataclasses import replace
 
     lib, seqs = fixture
@@ -350,8 +350,10 @@ def test_a_hand_starting_deeper_than_the_bound_is_never_held(fixture):
     shallow = H.hold(scene, pair.options.up)[0]
     deep = H.hold(replace(scene, depth=C.HOLD_MAX_DEPTH + 1e-4), pair.options.up)[0]
     assert shallow.held and not deep.held and not deep.diverged
-    assert (deep.settle, deep.displacement, deep.rotation) == (
-        shallow.settle, shallow.displacement, shallow.rotation)
+    # the same settle; the failed frame's hold is not simulated: the cap, as a diverged run
+    assert deep.settle == shallow.settle
+    assert (deep.displacement, deep.rotation) == (C.HOLD_DISP_CAP, 180.0)
+    assert deep.ruled_out and not shallow.ruled_out
 
 
 # the naive-loop comparisons test three drawn frames a hand: the same code paths as the
@@ -361,17 +363,18 @@ FEW = EvalOptions(max_physics_frames=3)
 
 def _hold_sim(pred, gt, lib, failures=None) -> dict[tuple[str, str], float]:
     rows, _ = evaluate_sequence(pred, gt, lib, options=EvalOptions(
-        metrics=("hold_sim", "hold_sim_disp", "hold_sim_settle"),
+        metrics=("hold_sim", "hold_sim_disp", "hold_sim_settle", "hold_sim_ruled"),
         max_physics_frames=FEW.max_physics_frames),
         failures=failures or FailureCounter())
     return {(r.hand, r.metric): r.value for r in rows}
 
 
 def test_hold_sim_is_the_articulated_test_on_the_drawn_frames(fixture):
-    """Metrics ``hold_sim`` / ``hold_sim_disp`` / ``hold_sim_settle`` against a naive loop
-    over the drawn frames calling ``hold.hand_scene`` / ``hold.hold`` directly (share held;
-    medians of the capped hold and settle displacements); the flat hand at the ground-truth
-    wrist drops the cylinder everywhere."""
+    """Metrics ``hold_sim`` / ``hold_sim_disp`` / ``hold_sim_settle`` / ``hold_sim_ruled``
+    against a naive loop over the drawn frames calling ``hold.hand_scene`` / ``hold.hold``
+    directly (share held; medians of the capped hold and settle displacements; the share
+    the depth, settle and wedge rules fail, from the scene's depth and the result's settle
+    and wedge); the flat hand at the ground-truth wrist drops the cylinder everywhere."""
     lib, seqs = fixture
     cylinder = seqs[1]
     flat = _flat(cylinder)
@@ -379,11 +382,15 @@ def test_hold_sim_is_the_articulated_test_on_the_drawn_frames(fixture):
         got = _hold_sim(pred, cylinder, lib)
         pair = SequencePair(pred, cylinder, lib, FEW, FailureCounter())
         for side in ("right", "left"):
-            res = []
+            res, ruled = [], []
             for t in physics_frames(pair, side):
                 scene = H.hand_scene(posed_hands(pair, int(t)), pair.mesh,
                                      object_pose(pair, int(t)), pair.options.up)
                 res.append(H.hold(scene, pair.options.up)[0])
+                r = res[-1]
+                ruled.append(not r.diverged and (scene.depth > C.HOLD_MAX_DEPTH or r.settle >
+                             C.HOLD_SETTLE_FAIL or r.wedge > H.HOLD_WEDGE_WEIGHTS))
+            assert got[(side, "hold_sim_ruled")] == pytest.approx(100 * np.mean(ruled))
             assert got[(side, "hold_sim")] == pytest.approx(100 * np.mean([r.held for r in res]))
             assert got[(side, "hold_sim_disp")] == pytest.approx(1e3 * np.median(  # mm
                 [min(r.displacement, C.HOLD_DISP_CAP) for r in res]))
