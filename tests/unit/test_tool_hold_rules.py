@@ -1,0 +1,51 @@
+"""tools/hold_rules.py: the rules against their bounds, the summary against hand-made frames,
+and (slow) the probe on the grasp fixture agreeing with the test's own ``ruled_out``."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from grip_bench.core import constants as C
+from grip_bench.metrics.hold import HOLD_WEDGE_WEIGHTS, _may_hold
+from tests.eval_fixtures import grasp_dataset
+from tools.hold_rules import probe, rules_broken, summarise
+
+
+@pytest.mark.parametrize("depth, settle, wedge, broken", [
+    (0.0, 0.0, 0.0, ()),
+    (C.HOLD_MAX_DEPTH, C.HOLD_SETTLE_FAIL, HOLD_WEDGE_WEIGHTS, ()),  # the bounds themselves pass
+    (C.HOLD_MAX_DEPTH + 1e-4, 0.0, 0.0, ("depth",)),
+    (0.0, C.HOLD_SETTLE_FAIL + 1e-4, 0.0, ("settle",)),
+    (0.0, 0.0, HOLD_WEDGE_WEIGHTS + 1.0, ("wedge",)),
+    (0.01, 0.01, 1e4, ("depth", "settle", "wedge")),
+    (0.0, 0.0, math.nan, ()),  # not measured
+])
+def test_rules_match_the_tests_own(depth, settle, wedge, broken):
+    assert rules_broken(depth, settle, wedge) == broken
+    assert _may_hold(depth, settle, wedge) == (not broken)
+
+
+def test_summary_counts_each_rule_and_the_first_per_object():
+    rows = [{"object": "glass", "held": False, "diverged": False, "rules": ["wedge"]},
+            {"object": "glass", "held": True, "diverged": False, "rules": []},
+            {"object": "cube", "held": False, "diverged": False, "rules": ["depth", "settle"]},
+            {"object": "cube", "held": False, "diverged": False, "rules": ["settle"]},
+            {"object": "cube", "held": False, "diverged": True, "rules": []}]
+    s = summarise(rows)
+    assert (s["frames"], s["held"], s["diverged"], s["ruled_out"]) == (5, 1, 1, 3)
+    assert (s["depth"], s["settle"], s["wedge"]) == (1, 2, 1)
+    assert (s["depth_first"], s["settle_first"], s["wedge_first"]) == (1, 1, 1)
+    assert s["objects"]["glass"]["wedge_first"] == 1 and s["objects"]["cube"]["ruled_out"] == 2
+
+
+@pytest.mark.slow  # one scene and a hold per tested frame (~15 s)
+def test_probe_agrees_with_the_tests_ruled_out(tmp_path):
+    data = tmp_path / "data"
+    grasp_dataset(data, T=40)  # a one-handed mug lift, a two-handed cylinder pass
+    res = probe(data)
+    assert res["frames"] > 0 and res["diverged"] == 0
+    for r in res["rows"]:
+        assert r["ruled_out"] == bool(r["rules"])
+        assert not (r["held"] and r["rules"])
