@@ -125,7 +125,7 @@ def verdict(scene, settle: float, disp: float, rot: float) -> bool:
     from grip_bench.core import constants as C
     from grip_bench.metrics import hold as H
 
-    return bool(H._may_hold(scene.depth, settle, float("nan"))
+    return bool(not H.broken_rules(scene.depth, settle, float("nan"))
                 and disp < C.HOLD_DISP and rot < C.HOLD_ROT)
 
 

@@ -74,18 +74,13 @@ def reason(scene, res) -> str:
     run diverged, a hand more than ``HOLD_MAX_DEPTH`` inside, the settle past
     ``HOLD_SETTLE_FAIL``, a finger wedged (``HOLD_WEDGE_WEIGHTS``), else the object moved
     or turned during the hold."""
-    from grip_bench.core import constants as C
     from grip_bench.metrics import hold as H
 
     if res.diverged:
         return "diverged"
-    if scene.depth > C.HOLD_MAX_DEPTH:
-        return "hand too deep"
-    if res.settle > C.HOLD_SETTLE_FAIL:
-        return "settle"
-    if res.wedge > H.HOLD_WEDGE_WEIGHTS:
-        return "wedged"
-    return "moved during the hold"
+    broken = H.broken_rules(scene.depth, res.settle, res.wedge)
+    names = {"depth": "hand too deep", "settle": "settle", "wedge": "wedged"}
+    return names[broken[0]] if broken else "moved during the hold"
 
 
 def summarise(rows: list[tuple[str, list[bool]]]) -> dict:

@@ -2,7 +2,7 @@
 
 The hold test (``metrics.hold.hold``) fails a frame after its 0.2 s settle, without holding
 it under gravity, when one of three rules says the hand is not grasping
-(``metrics.hold._may_hold``, ``HoldResult.ruled_out``; the physics table's
+(``metrics.hold.broken_rules``, ``HoldResult.ruled_out``; the physics table's
 ``hold_sim_ruled`` is their share): a hand vertex starts more than ``HOLD_MAX_DEPTH``
 inside the object (depth), the settle moves the object more than ``HOLD_SETTLE_FAIL``
 (settle), or the settled contacts push the hand into the object with more than
@@ -24,18 +24,7 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-RULES = ("depth", "settle", "wedge")
-
-
-def rules_broken(depth: float, settle: float, wedge: float) -> tuple[str, ...]:
-    """The rules a settled frame breaks, in ``RULES`` order: the same bounds as
-    ``metrics.hold._may_hold`` (a NaN wedge, not measured, breaks none)."""
-    from grip_bench.core import constants as C
-    from grip_bench.metrics.hold import HOLD_WEDGE_WEIGHTS
-
-    broken = (depth > C.HOLD_MAX_DEPTH, settle > C.HOLD_SETTLE_FAIL,
-              wedge > HOLD_WEDGE_WEIGHTS)
-    return tuple(r for r, b in zip(RULES, broken, strict=True) if b)
+from grip_bench.metrics.hold import HOLD_RULES as RULES
 
 
 def frame_rules(pair, t: int) -> dict | None:
@@ -48,7 +37,7 @@ def frame_rules(pair, t: int) -> dict | None:
     if scene is None:
         return None
     r = H.hold(scene, pair.options.up)[0]
-    broken = () if r.diverged else rules_broken(scene.depth, r.settle, r.wedge)
+    broken = () if r.diverged else H.broken_rules(scene.depth, r.settle, r.wedge)
     return {"held": bool(r.held), "diverged": bool(r.diverged), "ruled_out": bool(r.ruled_out),
             "rules": list(broken), "depth_mm": 1e3 * scene.depth, "settle_mm": 1e3 * r.settle,
             "wedge_weights": float(r.wedge)}

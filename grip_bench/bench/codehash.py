@@ -12,6 +12,13 @@ A module's code is its syntax tree without docstrings (``ast.dump``: no comments
 numbers), so an edit of a comment, a docstring or the layout renews nothing, while any
 change to a statement, a name, a constant or an annotation does.
 
+A *constants module* (every top-level statement a plain assignment to names, as
+``core/constants.py``) counts by name instead: a closure holds only the assignments of the
+names its other modules read from it (``C.NAME``, ``from ... import NAME``) and of the
+names those assignments read, so a change to a physics protocol constant renews the units
+that read it and not the dataset. A module that uses such a module other than by reading an
+attribute (``dir(C)``, ``getattr(C, name)``, ``import *``) counts it whole.
+
 Methods are found through the registry by name (``importlib``), so a unit that runs a
 method names the method's module as an entry itself (``bench.plan``); plug-in metrics are
 imported by the metric registry through entry points, so the metric units name their
@@ -69,6 +76,7 @@ class CodeIndex:
                     self.packages.add(".".join(parts))
                 self.files[".".join(parts)] = path
         self._imports: dict[str, frozenset[str]] = {}
+        self._reads: dict[tuple[str, str], frozenset[str] | None] = {}
         self._trees: dict[str, ast.Module] = {}
         self._code: dict[str, bytes] = {}
         self._digests: dict[tuple[str, ...], str] = {}
@@ -133,14 +141,125 @@ class CodeIndex:
         return sorted(seen)
 
     def digest(self, entries: Iterable[str]) -> str:
-        """sha256 over the names and :meth:`code` of the :meth:`closure` of ``entries``."""
+        """sha256 over the names and code of the :meth:`closure` of ``entries``: each module's
+        :meth:`code`, a constants module's the :meth:`constants_read` of the closure."""
         key = tuple(entries)
         if key not in self._digests:
             h = hashlib.sha256()
-            for mod in self.closure(key):
-                h.update(mod.encode() + b"\0" + self.code(mod) + b"\0")
+            closure = self.closure(key)
+            for mod in closure:
+                code = (self.constants_code(mod, self.constants_read(mod, closure))
+                        if self.is_constants(mod) else self.code(mod))
+                h.update(mod.encode() + b"\0" + code + b"\0")
             self._digests[key] = h.hexdigest()
         return self._digests[key]
+
+    # -- constants modules, counted by name -------------------------------------------------
+    def is_constants(self, module: str) -> bool:
+        """Whether every top-level statement of ``module`` (docstring aside) assigns to plain
+        names: a module of named constants, which :meth:`digest` counts by name."""
+        body = self._tree(module).body
+        return bool(body) and module not in self.packages and all(
+            _assigned_names(node) is not None for node in body)
+
+    def constants_read(self, constants: str, modules: Iterable[str]) -> frozenset[str] | None:
+        """The names of ``constants`` that ``modules`` read, with the names their assignments
+        read in turn; None when one of them uses the module whole (then all of it counts)."""
+        names: set[str] = set()
+        for mod in modules:
+            if mod == constants:
+                continue
+            read = self.reads(mod, constants)
+            if read is None:
+                return None
+            names |= read
+        values = self._assignments(constants)
+        todo = list(names)
+        while todo:  # a constant defined from others reads them
+            for node in values.get(todo.pop(), ()):
+                for n in ast.walk(node.value if node.value is not None else node):
+                    if isinstance(n, ast.Name) and n.id in values and n.id not in names:
+                        names.add(n.id)
+                        todo.append(n.id)
+        return frozenset(names)
+
+    def constants_code(self, constants: str, names: frozenset[str] | None) -> bytes:
+        """The code of ``constants`` that counts for ``names`` (None: all of it): their
+        assignments in file order."""
+        if names is None:
+            return self.code(constants)
+        kept = [node for node in self._tree(constants).body
+                if set(_assigned_names(node) or ()) & names]
+        return ast.dump(ast.Module(body=kept, type_ignores=[])).encode()
+
+    def _assignments(self, constants: str) -> dict[str, list[ast.Assign | ast.AnnAssign]]:
+        out: dict[str, list] = {}
+        for node in self._tree(constants).body:
+            for name in _assigned_names(node) or ():
+                out.setdefault(name, []).append(node)
+        return out
+
+    def reads(self, module: str, constants: str) -> frozenset[str] | None:
+        """The names ``module`` reads from the constants module ``constants`` (empty when it
+        does not import it); None when it uses the module other than by attribute."""
+        key = (module, constants)
+        if key not in self._reads:
+            self._reads[key] = self._find_reads(module, constants)
+        return self._reads[key]
+
+    def _find_reads(self, module: str, constants: str) -> frozenset[str] | None:
+        tree = self._tree(module)
+        pkg = module if module in self.packages else module.rpartition(".")[0]
+        parent, _, leaf = constants.rpartition(".")
+        names: set[str] = set()
+        aliases: set[str] = set()
+        for node in _runtime_nodes(tree):
+            if isinstance(node, ast.ImportFrom):
+                base = _resolve(node, pkg)
+                for a in node.names:
+                    if base == constants:
+                        if a.name == "*":
+                            return None
+                        names.add(a.name)
+                    elif base == parent and a.name == leaf:
+                        aliases.add(a.asname or a.name)
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name == constants:
+                        if a.asname is None:  # read as a dotted path: count it whole
+                            return None
+                        aliases.add(a.asname)
+        if not aliases:
+            return frozenset(names)
+        attribute_of: set[int] = set()
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                    and node.value.id in aliases):
+                names.add(node.attr)
+                attribute_of.add(id(node.value))
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Name) and node.id in aliases
+                    and id(node) not in attribute_of and not isinstance(node.ctx, ast.Store)):
+                return None  # dir(C), getattr(C, ...), passed on: every name may be read
+        return frozenset(names)
+
+
+def _assigned_names(node: ast.stmt) -> list[str] | None:
+    """The names a top-level ``NAME = ...`` / ``NAME: T = ...`` statement assigns (tuple
+    targets of names included); None for any other statement."""
+    if isinstance(node, ast.AnnAssign):
+        targets = [node.target]
+    elif isinstance(node, ast.Assign):
+        targets = node.targets
+    else:
+        return None
+    names: list[str] = []
+    for t in targets:
+        elts = t.elts if isinstance(t, ast.Tuple) else [t]
+        if not all(isinstance(e, ast.Name) for e in elts):
+            return None
+        names += [e.id for e in elts]
+    return names
 
 
 def _missing(name: str) -> str:

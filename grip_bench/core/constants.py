@@ -156,6 +156,11 @@ HOLD_BONE_MASS = 0.005  # kg per finger bone (gravity-compensated: the hand does
 HOLD_CONE_EDGES = 8  # edges of the linearised friction cone (geometry.wrench, the force check)
 HOLD_MAX_DEPTH = 0.005  # m; a hand whose deepest vertex is further inside is not holding (qs, sim)
 HOLD_MU_SENSITIVITY = (0.5, 3.0)  # friction of the hold check's sensitivity columns (1: reported)
+# The wedge rule (metrics.hold.inward_force): settled contacts pushing the hands *into* the
+# object with more than this many object weights mean a finger wedged inside a thin wall,
+# glued by the two faces' opposing forces, not a grasp. SynthGRAB 2.4's ground truth: 8,400-
+# 22,200 weights on wedged frames, at most 8.3 on every other (docs/physics_hold.md, s49).
+HOLD_WEDGE_WEIGHTS = 50.0
 HOLD_ARMATURE = 2e-3  # kg m^2; reflected inertia of a finger joint: servo period ~90 ms >> SIM_DT
 SIM_FREE_FALL_5 = 0.5 * GRAVITY * SIM_DT**2 * SIM_PAPER_STEPS * (SIM_PAPER_STEPS + 1)
 # m (2.55 mm): free fall over the support test's 5 semi-implicit Euler steps, printed beside it

@@ -592,23 +592,22 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
         model.opt.gravity[:] = -C.GRAVITY * np.asarray(up, np.float64)
 
 
-# The wedge rule of :func:`hold` (docs/physics_hold.md, "Measured in s49"): a settled scene
-# whose contacts push the hands *into* the object with more than this many times the
-# object's weight holds by a finger wedged inside a thin wall (the far face's prisms push it
-# in, the near face's push it out, and the friction of the two glues the object), not by a
-# grasp. Measured on SynthGRAB 2.4's ground truth (every tested frame): 21,200-22,200 weights
-# on the test split's held wedged frames, at most 2.5 on every other; on val 8,400-13,200
-# and at most 8.3 (and 77 on a frame that falls anyway). Kept here, not in core.constants:
-# an edit there renews every cache key, data included.
-HOLD_WEDGE_WEIGHTS = 50.0
+HOLD_RULES = ("depth", "settle", "wedge")  # in the order broken_rules reports them
+
+
+def broken_rules(depth: float, settle: float, wedge: float) -> tuple[str, ...]:
+    """The rules of :data:`HOLD_RULES` a settled scene breaks, failing it before its hold:
+    a hand vertex more than ``HOLD_MAX_DEPTH`` inside (depth), a settle past
+    ``HOLD_SETTLE_FAIL`` (settle), more than ``HOLD_WEDGE_WEIGHTS`` object weights of
+    inward force (wedge: :func:`inward_force`; NaN, not measured, breaks nothing)."""
+    broken = (depth > C.HOLD_MAX_DEPTH, settle > C.HOLD_SETTLE_FAIL,
+              wedge > C.HOLD_WEDGE_WEIGHTS)
+    return tuple(r for r, b in zip(HOLD_RULES, broken, strict=True) if b)
 
 
 def _may_hold(depth: float, settle: float, wedge: float) -> bool:
-    """The rules a settled scene must pass before its hold can count: no hand vertex more
-    than ``HOLD_MAX_DEPTH`` inside, a settle of at most ``HOLD_SETTLE_FAIL``, and no more
-    than ``HOLD_WEDGE_WEIGHTS`` of inward force (NaN, not measured, passes)."""
-    return (depth <= C.HOLD_MAX_DEPTH and settle <= C.HOLD_SETTLE_FAIL
-            and not wedge > HOLD_WEDGE_WEIGHTS)
+    """Whether a settled scene's hold can count: it breaks none of :func:`broken_rules`."""
+    return not broken_rules(depth, settle, wedge)
 
 
 def inward_force(model: mujoco.MjModel, data: mujoco.MjData,

@@ -154,8 +154,24 @@ def test_the_wedge_rule_fails_a_scene_past_its_bound(monkeypatch):
     cube = trimesh.creation.box(extents=[0.04] * 3)
     held = H.static_hold(_pinching_fingers(), cube, (np.eye(3), np.zeros(3)))
     assert held.held and held.wedge == 0.0 and not held.ruled_out
-    monkeypatch.setattr(H, "HOLD_WEDGE_WEIGHTS", -1.0)
+    monkeypatch.setattr(C, "HOLD_WEDGE_WEIGHTS", -1.0)
     wedged = H.static_hold(_pinching_fingers(), cube, (np.eye(3), np.zeros(3)))
     assert not wedged.held and not wedged.diverged and wedged.settle == held.settle
     assert (wedged.displacement, wedged.rotation) == (C.HOLD_DISP_CAP, 180.0)
     assert wedged.ruled_out
+
+
+@pytest.mark.parametrize("depth, settle, wedge, broken", [
+    (0.0, 0.0, 0.0, ()),
+    (C.HOLD_MAX_DEPTH, C.HOLD_SETTLE_FAIL, C.HOLD_WEDGE_WEIGHTS, ()),  # the bounds pass
+    (C.HOLD_MAX_DEPTH + 1e-4, 0.0, 0.0, ("depth",)),
+    (0.0, C.HOLD_SETTLE_FAIL + 1e-4, 0.0, ("settle",)),
+    (0.0, 0.0, C.HOLD_WEDGE_WEIGHTS + 1.0, ("wedge",)),
+    (0.01, 0.01, 1e4, ("depth", "settle", "wedge")),
+    (0.0, 0.0, float("nan"), ()),  # the wedge not measured
+])
+def test_broken_rules_at_and_past_each_bound(depth, settle, wedge, broken):
+    """The rules a settled scene breaks, in HOLD_RULES order, against hand-set values at and
+    past each bound; a scene may hold exactly when it breaks none."""
+    assert H.broken_rules(depth, settle, wedge) == broken
+    assert H._may_hold(depth, settle, wedge) == (not broken)

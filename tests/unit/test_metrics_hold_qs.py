@@ -389,7 +389,7 @@ def test_hold_sim_is_the_articulated_test_on_the_drawn_frames(fixture):
                 res.append(H.hold(scene, pair.options.up)[0])
                 r = res[-1]
                 ruled.append(not r.diverged and (scene.depth > C.HOLD_MAX_DEPTH or r.settle >
-                             C.HOLD_SETTLE_FAIL or r.wedge > H.HOLD_WEDGE_WEIGHTS))
+                             C.HOLD_SETTLE_FAIL or r.wedge > C.HOLD_WEDGE_WEIGHTS))
             assert got[(side, "hold_sim_ruled")] == pytest.approx(100 * np.mean(ruled))
             assert got[(side, "hold_sim")] == pytest.approx(100 * np.mean([r.held for r in res]))
             assert got[(side, "hold_sim_disp")] == pytest.approx(1e3 * np.median(  # mm

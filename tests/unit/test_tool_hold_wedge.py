@@ -25,7 +25,7 @@ def test_summary_counts_wedged_frames_per_object():
 
 @pytest.mark.slow  # one scene, a hold and a second settle per tested frame (~20 s)
 def test_probe_on_the_grasp_fixture(tmp_path):
-    from grip_bench.metrics.hold import HOLD_WEDGE_WEIGHTS
+    from grip_bench.core.constants import HOLD_WEDGE_WEIGHTS
 
     data = tmp_path / "data"
     grasp_dataset(data, T=40)  # a one-handed mug lift, a two-handed cylinder pass
