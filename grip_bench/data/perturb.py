@@ -219,13 +219,16 @@ def _prepare_out(in_dir: Path, out_dir: Path) -> Path:
 def perturb_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, kind: str,
                     sigma: float | Iterable[float] | None = None, seed: int = 0,
                     split: str | None = "test", *,
-                    mano_backend: ManoBackend | None = None) -> Path:
+                    mano_backend: ManoBackend | None = None,
+                    source: str | None = None) -> Path:
     """Write a perturbed copy of one split of ``in_dir`` to ``out_dir`` (GRAB layout).
 
     Writes ``grab/s<k>/*.npz`` (30 fps, full axis-angle), the object (and any subject /
     table) meshes, ``splits.json`` and ``manifest.json`` (kind, sigma, seed, split, source
     hash, sequences). ``split=None`` or ``"all"`` perturbs every sequence. Returns the
     manifest path. Without ``DATA/splits.json`` the GRIP split of real GRAB is used.
+    ``source``: how the manifest names the input (default: its absolute path; a run names
+    its dataset unit, so that a unit's bytes do not depend on where its cache lies).
     """
     in_dir, out_dir = Path(in_dir), Path(out_dir)
     resolve_sigma(kind, sigma)
@@ -240,7 +243,7 @@ def perturb_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, kind:
             _copy_meshes(seq, in_dir, tmp)
             names.append(seq.name)
         write_splits(tmp, splits)
-        manifest = _manifest(in_dir, kind, sigma, seed, split, names)
+        manifest = _manifest(in_dir, kind, sigma, seed, split, names, source)
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
         if out_dir.exists():
             out_dir.rmdir()  # empty (checked above); rename cannot replace it portably
@@ -258,6 +261,7 @@ def _manifest(
     seed: int,
     split: str | None,
     names: list[str],
+    source: str | None = None,
 ) -> dict:
     sig = resolve_sigma(kind, sigma)
     return {
@@ -266,6 +270,6 @@ def _manifest(
         "sigma": list(sig) if isinstance(sig, tuple) else sig,
         "sigma_unit": "m" if kind == "T" else "rad", "seed": int(seed), "split": split,
         "noise": "per-frame i.i.d. Gaussian; per-sequence generator from (seed, crc32(name))",
-        "source": str(in_dir.resolve()), "source_hash": dataset_hash(in_dir),
+        "source": source or str(in_dir.resolve()), "source_hash": dataset_hash(in_dir),
         "n_sequences": len(names), "sequences": names,
     }

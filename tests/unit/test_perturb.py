@@ -1,6 +1,7 @@
 """Perturbations: noise statistics, determinism, only targeted fields change, dataset output."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -142,6 +143,19 @@ def test_perturb_dataset_writes_test_split(tmp_path):
     assert np.array_equal(noisy.rhand["transl"], expect.rhand["transl"])
     assert np.array_equal(noisy.body["fullpose"], clean.body["fullpose"])
     assert dataset_hash(src) == h  # the source is untouched
+    assert info["source"] == str(src.resolve())
+
+
+def test_perturbed_bytes_do_not_depend_on_where_the_source_lies(tmp_path):
+    """A run names its dataset unit as the source: two copies of one dataset in different
+    folders give byte-identical perturbed manifests (a cached unit is the same anywhere)."""
+    src = _data(tmp_path)
+    copy = tmp_path / "elsewhere" / "src"
+    shutil.copytree(src, copy)
+    a = perturb_dataset(src, tmp_path / "a", "R", 0.3, seed=1, source="dataset-abc")
+    b = perturb_dataset(copy, tmp_path / "b", "R", 0.3, seed=1, source="dataset-abc")
+    assert a.read_bytes() == b.read_bytes()
+    assert json.loads(a.read_text())["source"] == "dataset-abc"
 
 
 def test_perturb_dataset_refuses_non_empty_output(tmp_path):

@@ -18,5 +18,6 @@ def make_perturbed(st: RunState, unit: Unit, tmp: Path) -> dict:
 
     p = unit.params
     perturb_dataset(st.data_dir(unit.deps[0]), tmp / "data", p["noise"], p["sigma"],
-                    seed=st.cfg.settings["perturb_seed"], split=MAIN_SPLIT)
+                    seed=st.cfg.settings["perturb_seed"], split=MAIN_SPLIT,
+                    source=unit.deps[0])  # the dataset unit's key, not its cache path
     return {"perturbation": p["label"]}
