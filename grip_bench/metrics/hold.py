@@ -599,8 +599,9 @@ def broken_rules(depth: float, settle: float, wedge: float) -> tuple[str, ...]:
     """The rules of :data:`HOLD_RULES` a settled scene breaks, failing it before its hold:
     a hand vertex more than ``HOLD_MAX_DEPTH`` inside (depth), a settle past
     ``HOLD_SETTLE_FAIL`` (settle), more than ``HOLD_WEDGE_WEIGHTS`` object weights of
-    inward force (wedge: :func:`inward_force`; NaN, not measured, breaks nothing)."""
-    broken = (depth > C.HOLD_MAX_DEPTH, settle > C.HOLD_SETTLE_FAIL,
+    inward force (wedge: :func:`inward_force`; NaN, not measured, breaks nothing; a NaN
+    depth or settle breaks its rule)."""
+    broken = (not depth <= C.HOLD_MAX_DEPTH, not settle <= C.HOLD_SETTLE_FAIL,
               wedge > C.HOLD_WEDGE_WEIGHTS)
     return tuple(r for r, b in zip(HOLD_RULES, broken, strict=True) if b)
 

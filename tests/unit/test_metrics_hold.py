@@ -169,6 +169,7 @@ def test_the_wedge_rule_fails_a_scene_past_its_bound(monkeypatch):
     (0.0, 0.0, C.HOLD_WEDGE_WEIGHTS + 1.0, ("wedge",)),
     (0.01, 0.01, 1e4, ("depth", "settle", "wedge")),
     (0.0, 0.0, float("nan"), ()),  # the wedge not measured
+    (float("nan"), float("nan"), 0.0, ("depth", "settle")),  # as _may_hold always read it
 ])
 def test_broken_rules_at_and_past_each_bound(depth, settle, wedge, broken):
     """The rules a settled scene breaks, in HOLD_RULES order, against hand-set values at and
