@@ -101,3 +101,32 @@ def test_installed_dataset_units_do_not_read_the_hold_tests_servos(name, data_re
     assert (name in index.constants_read(consts, data)) is data_reads
     assert index.constants_read(consts, index.closure(["grip_bench.bench.stages.evaluate"])) \
         is None
+
+
+def test_installed_reads_cover_a_naive_textual_scan():
+    """The naive reference on the installed tree: every ``C.NAME`` / ``constants.NAME``
+    attribute and every name in a ``from ...constants import (...)`` list of a module is among
+    the names :meth:`reads` finds for it (or the module counts the constants whole); the
+    scan reads the code without docstrings, as the digest does."""
+    import ast
+    import re
+
+    index = CodeIndex.installed()
+    consts = "grip_bench.core.constants"
+    defined = set(index._assignments(consts))
+    checked = 0
+    for module, path in index.files.items():
+        if module == consts or "constants" not in path.read_text():
+            continue
+        text = ast.unparse(index._tree(module))
+        if "constants" not in text:
+            continue
+        read = index.reads(module, consts)
+        if read is None:
+            continue
+        used = set(re.findall(r"\b(?:C|constants)\.([A-Z][A-Z0-9_]*)", text))
+        for group in re.findall(r"constants import \(?([A-Z0-9_,\s]+)\)?", text):
+            used |= set(re.findall(r"[A-Z][A-Z0-9_]*", group))
+        assert used & defined <= read, (module, sorted((used & defined) - read))
+        checked += 1
+    assert checked > 30
