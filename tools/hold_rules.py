@@ -14,14 +14,23 @@ several) and the first one in that order, with the verdict of the world-gravity 
 split (``--pred DIR``, a folder of the same layout, as a run's prediction unit holds).
 A diagnostic for docs/physics_hold.md ("Landed in s50").
 
+``--finger-kp`` / ``--finger-torque`` run it with other finger servos (``HOLD_FINGER_KP``,
+``HOLD_FINGER_TORQUE``; the damping ``HOLD_FINGER_KV`` scaled by the square root of the
+gain, the same damping ratio), in this process only: s51's human-strength grip, 30 N m/rad
+and 1 N m (docs/physics_hold.md, "Landed and measured in s51").
+
     python tools/hold_rules.py DATA [--pred DIR] [--split test] [--every 1] [--json]
+                               [--finger-kp 30 --finger-torque 1]
 """
 
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from grip_bench.metrics.hold import HOLD_RULES as RULES
@@ -78,6 +87,25 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
             **summarise(rows), "rows": rows}
 
 
+@contextmanager
+def finger_servos(kp: float | None = None, torque: float | None = None) -> Iterator[None]:
+    """The finger servos' gain (N m/rad) and torque cap (N m) set to ``kp`` / ``torque``
+    (None: as committed) while the block runs, the damping scaled with the gain's square
+    root; restored after."""
+    from grip_bench.core import constants as C
+
+    saved = C.HOLD_FINGER_KP, C.HOLD_FINGER_KV, C.HOLD_FINGER_TORQUE
+    if kp is not None:
+        C.HOLD_FINGER_KV = saved[1] * math.sqrt(kp / saved[0])
+        C.HOLD_FINGER_KP = kp
+    if torque is not None:
+        C.HOLD_FINGER_TORQUE = torque
+    try:
+        yield
+    finally:
+        C.HOLD_FINGER_KP, C.HOLD_FINGER_KV, C.HOLD_FINGER_TORQUE = saved
+
+
 def main(argv: list[str] | None = None) -> int:
     from tools.probe_cli import parse, run
 
@@ -87,9 +115,15 @@ def main(argv: list[str] | None = None) -> int:
                              "default: the ground truth")
         ap.add_argument("--every", type=int, default=1,
                         help="test every N-th tested frame of a sequence")
+        ap.add_argument("--finger-kp", type=float, default=None,
+                        help="finger servo gain, N m/rad (default: HOLD_FINGER_KP)")
+        ap.add_argument("--finger-torque", type=float, default=None,
+                        help="finger servo torque cap, N m (default: HOLD_FINGER_TORQUE)")
 
     args = parse(__doc__, argv, extend)
-    res = run(lambda: probe(args.data, args.split, args.model_path, args.pred, args.every))
+    with finger_servos(args.finger_kp, args.finger_torque):
+        res = run(lambda: probe(args.data, args.split, args.model_path, args.pred,
+                                args.every))
     if res is None:
         return 1
     if args.json:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from tests.eval_fixtures import grasp_dataset
-from tools.hold_rules import probe, summarise
+from tools.hold_rules import finger_servos, probe, summarise
 
 
 def test_summary_counts_each_rule_and_the_first_per_object():
@@ -31,3 +31,18 @@ def test_probe_agrees_with_the_tests_ruled_out(tmp_path):
     for r in res["rows"]:
         assert r["ruled_out"] == bool(r["rules"])
         assert not (r["held"] and r["rules"])
+
+
+def test_finger_servos_are_set_for_the_block_and_restored():
+    """s51's human-strength probe: the gain and cap set, the damping scaled with the gain's
+    square root (the same damping ratio), everything restored after, even on an error."""
+    from grip_bench.core import constants as C
+
+    before = C.HOLD_FINGER_KP, C.HOLD_FINGER_KV, C.HOLD_FINGER_TORQUE
+    with pytest.raises(RuntimeError), finger_servos(4 * before[0], 1.0):
+        assert C.HOLD_FINGER_KP == 4 * before[0] and C.HOLD_FINGER_TORQUE == 1.0
+        assert C.HOLD_FINGER_KV == pytest.approx(2 * before[1])
+        raise RuntimeError
+    assert (C.HOLD_FINGER_KP, C.HOLD_FINGER_KV, C.HOLD_FINGER_TORQUE) == before
+    with finger_servos():
+        assert (C.HOLD_FINGER_KP, C.HOLD_FINGER_KV, C.HOLD_FINGER_TORQUE) == before
