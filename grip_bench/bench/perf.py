@@ -816,9 +816,10 @@ def _hold_row(chosen: list[tuple[object, int]], settings: Settings, stage: str,
 
     ``as_run``: each frame's scene serves the tests a run computes on it for the physics
     table (``metrics.evaluate._hold_runs``): the six gravity directions at mu = 1 after one
-    settle (the world's gravity is one of them: ``hold_sim`` and ``hold_sim_axes``) and the
-    world's at each ``HOLD_MU_SENSITIVITY`` friction (a settle each), so a test's time is the
-    scene's shared among them; no goal (the goal's row is one test a scene)."""
+    settle (the world's gravity is one of them: ``hold_sim`` and ``hold_sim_axes``), the
+    world's at each ``HOLD_MU_SENSITIVITY`` friction and at each ``HOLD_GRIP_SENSITIVITY``
+    grip strength (a settle each, since s52), so a test's time is the scene's shared among
+    them; no goal (the goal's row is one test a scene)."""
     from ..core import constants as C
     from ..metrics import hold
     from ..metrics.evaluate import object_pose, posed_hands
@@ -837,6 +838,8 @@ def _hold_row(chosen: list[tuple[object, int]], settings: Settings, stage: str,
             hold.hold(scene, pair.options.up, hold.AXES)
             for mu in C.HOLD_MU_SENSITIVITY:
                 hold.hold(scene, pair.options.up, (None,), mu)
+            for grip in C.HOLD_GRIP_SENSITIVITY:
+                hold.hold(scene, pair.options.up, (None,), C.SIM_FRICTION, grip)
 
     sample = repeat(run, settings.repeats)
     if as_run:
@@ -902,11 +905,12 @@ def _dataset_hold(settings: Settings, core: str, progress: Progress) -> list[Row
 
 def _tests_per_scene() -> int:
     """The articulated hold tests a run computes on one tested frame's scene for the physics
-    table: the six gravity directions at mu = 1 and the world's at each sensitivity friction."""
+    table: the six gravity directions at mu = 1 and the world's at each sensitivity friction
+    and grip strength."""
     from ..core import constants as C
     from ..metrics.hold import AXES
 
-    return len(AXES) + len(C.HOLD_MU_SENSITIVITY)
+    return len(AXES) + len(C.HOLD_MU_SENSITIVITY) + len(C.HOLD_GRIP_SENSITIVITY)
 
 
 def measure_stages(settings: Settings, floors: dict[str, Floor], scene: Scene,

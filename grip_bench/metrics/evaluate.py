@@ -74,7 +74,8 @@ if TYPE_CHECKING:
 # all on the same drawn held frames (``physics_frames``)
 PHYSICS_METRICS = ("hold_qs", "hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes", "sim_stable",
                    "sim_disp", "hold_sim", "hold_sim_disp", "hold_sim_settle", "hold_sim_ruled",
-                   "hold_sim_mu05", "hold_sim_mu3", "hold_sim_axes")
+                   "hold_sim_mu05", "hold_sim_mu3", "hold_sim_axes", "hold_sim_weak",
+                   "hold_sim_strong")
 
 
 @dataclass(frozen=True)
@@ -756,26 +757,28 @@ def hold_scene(pair: SequencePair, t: int) -> Scene | None:
 
 
 def hold_frame(pair: SequencePair, t: int, mu: float = C.SIM_FRICTION,
-               axis: str | None = None) -> HoldResult | None:
+               axis: str | None = None, grip: float = 1.0) -> HoldResult | None:
     """The articulated MuJoCo hold test (``metrics.hold``) of frame ``t`` (:func:`hold_scene`)
-    with friction ``mu`` under the world's gravity (``axis`` None) or gravity along one of
-    ``hold.AXES``, cached per (frame, mu, direction); None where the scene cannot be built.
-    The six directions of a (frame, mu) share one settle (``hold.hold``); the axis that is the
-    world's own gravity is the world test."""
-    return _hold_runs(pair, t, mu, (axis,))[0]
+    with friction ``mu`` and finger servos scaled by ``grip`` (``hold.servo_strength``) under
+    the world's gravity (``axis`` None) or gravity along one of ``hold.AXES``, cached per
+    (frame, mu, direction, grip); None where the scene cannot be built. The six directions
+    of a (frame, mu, grip) share one settle (``hold.hold``); the axis that is the world's own
+    gravity is the world test."""
+    return _hold_runs(pair, t, mu, (axis,), grip)[0]
 
 
-def _hold_runs(pair: SequencePair, t: int, mu: float,
-               axes: tuple[str | None, ...]) -> list[HoldResult | None]:
+def _hold_runs(pair: SequencePair, t: int, mu: float, axes: tuple[str | None, ...],
+               grip: float = 1.0) -> list[HoldResult | None]:
     """:func:`hold_frame` of several directions; the uncached ones run after one settle."""
     from .hold import hold
 
     axes = tuple(_world_axis(pair, a) for a in axes)
-    keys = {a: (t, "articulated hold", mu, a) for a in axes}
+    keys = {a: (t, "articulated hold", mu, a, grip) for a in axes}
     todo = tuple(dict.fromkeys(a for a in axes if keys[a] not in pair._sims))
     if todo:
         scene = hold_scene(pair, t)
-        res = [None] * len(todo) if scene is None else hold(scene, pair.options.up, todo, mu)
+        res = ([None] * len(todo) if scene is None
+               else hold(scene, pair.options.up, todo, mu, grip))
         for a, r in zip(todo, res, strict=True):
             if r is not None and r.diverged:
                 pair.failures.add("simulation diverged (articulated hold)")
@@ -864,6 +867,36 @@ def _median_capped(idx: np.ndarray, disp: list[float | None]) -> Measured:
 _friction_rows("hold_sim", "Articulated hold", 3, "share of tested held frames where "
                + _HOLD_DEF.replace("{g}", "the frame's gravity"),
                _sim_share)
+
+
+def _grip_rows() -> None:
+    """Register ``hold_sim_weak`` and ``hold_sim_strong``: the grip-strength sensitivity rows
+    of the articulated hold, its finger servos scaled by the factors of
+    ``HOLD_GRIP_SENSITIVITY`` (below and above 1; physics table only). The servo model is
+    a free parameter of the test: these rows report how much a verdict depends on it."""
+    weak, strong = C.HOLD_GRIP_SENSITIVITY
+    if not weak < 1.0 < strong:
+        raise ValueError(f"HOLD_GRIP_SENSITIVITY must be (below 1, above 1), got "
+                         f"{C.HOLD_GRIP_SENSITIVITY}")
+    for tag, f in (("weak", weak), ("strong", strong)):
+        x = f"x{f:g}" if f >= 1.0 else f"x1/{1.0 / f:g}"
+        metric(f"hold_sim_{tag}", f"Articulated hold (grip {x})", "%", 1e2, True, "held", 1,
+               f"hold_sim with the finger servos' gain and torque cap {x} "
+               f"({C.HOLD_FINGER_KP * f:.3g} N m/rad, {C.HOLD_FINGER_TORQUE * f:.2g} N m; "
+               "damping by the root; the same tightened targets; settle and hold at that "
+               "strength; grip-strength sensitivity, physics table only): share of tested "
+               "held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=1),
+               leaderboard=False)(
+            lambda pair, side, f=f: _grip_share(pair, side, f))
+
+
+def _grip_share(pair: SequencePair, side: str, grip: float) -> Measured:
+    idx = physics_frames(pair, side)
+    return Measured(idx, _held([hold_frame(pair, int(t), C.SIM_FRICTION, None, grip)
+                                for t in idx]))
+
+
+_grip_rows()
 
 
 @metric("hold_sim_axes", "Articulated hold (6 gravity directions)", "%", 1e2, True, "held", 3,

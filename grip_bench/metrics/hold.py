@@ -545,10 +545,11 @@ def gravity_along(direction: str | None, up: np.ndarray) -> np.ndarray:
 
 def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
          directions: tuple[str | None, ...] = (None,),
-         friction: float = C.SIM_FRICTION) -> list[HoldResult]:
+         friction: float = C.SIM_FRICTION, grip: float = 1.0) -> list[HoldResult]:
     """The hold test of a compiled scene: settle once, then one hold per gravity direction
     (None: the world's, ``-g up``; else an axis such as "+x", the direction gravity pulls).
-    ``friction``: sliding friction of every geom for this run. A scene whose hands start
+    ``friction``: sliding friction of every geom for this run; ``grip``: the finger servos'
+    strength for this run (:func:`servo_strength`; 1 = ``HOLD_FINGER_*``). A scene whose hands start
     more than ``HOLD_MAX_DEPTH`` inside the object, or whose settled contacts push the hands
     into it with more than ``HOLD_WEDGE_WEIGHTS`` object weights (:func:`inward_force`: a
     finger wedged inside a thin wall), or whose settle moved the object more than
@@ -560,8 +561,10 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
 
     model = scene.model
     saved = model.geom_friction[:, 0].copy()
-    model.geom_friction[:, 0] = friction
+    servos = _servo_params(model)
     try:
+        model.geom_friction[:, 0] = friction
+        servo_strength(model, grip)
         data = mujoco.MjData(model)
         model.opt.gravity[:] = 0.0
         mujoco.mj_forward(model, data)
@@ -589,7 +592,34 @@ def hold(scene: Scene, up: tuple[float, float, float] = C.UP,
         return out
     finally:
         model.geom_friction[:, 0] = saved
+        _set_servo_params(model, servos)
         model.opt.gravity[:] = -C.GRAVITY * np.asarray(up, np.float64)
+
+
+def servo_strength(model: mujoco.MjModel, factor: float) -> None:
+    """Scale the finger servos of a compiled scene, from ``HOLD_FINGER_*``, by ``factor``:
+    the gain (N m/rad) and the torque cap (N m) by ``factor``, the damping by its square
+    root (the joints' armature is fixed, so that keeps the damping ratio). The tightened
+    targets do not depend on it: a stronger grip presses harder toward the same pose. The
+    grip-strength sensitivity rows (``HOLD_GRIP_SENSITIVITY``) run with it."""
+    if not factor > 0.0:
+        raise ValueError(f"grip strength factor must be > 0, got {factor}")
+    kp, kv, cap = (C.HOLD_FINGER_KP * factor, C.HOLD_FINGER_KV * np.sqrt(factor),
+                   C.HOLD_FINGER_TORQUE * factor)
+    n = model.nu
+    _set_servo_params(model, (np.full(n, kp), np.full(n, -kp), np.full(n, -kv),
+                              np.tile([-cap, cap], (n, 1))))
+
+
+def _servo_params(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
+    """The servos' gain, position bias, velocity bias and force range (copies)."""
+    return (model.actuator_gainprm[:, 0].copy(), model.actuator_biasprm[:, 1].copy(),
+            model.actuator_biasprm[:, 2].copy(), model.actuator_forcerange.copy())
+
+
+def _set_servo_params(model: mujoco.MjModel, params: tuple[np.ndarray, ...]) -> None:
+    model.actuator_gainprm[:, 0], model.actuator_biasprm[:, 1] = params[0], params[1]
+    model.actuator_biasprm[:, 2], model.actuator_forcerange[:] = params[2], params[3]
 
 
 HOLD_RULES = ("depth", "settle", "wedge")  # in the order broken_rules reports them

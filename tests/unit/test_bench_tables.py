@@ -57,7 +57,7 @@ def test_table_shapes_match_the_paper():
     assert [c.filters["metric"] for c in phys.columns] == [
         "hold_qs", "hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes", "sim_stable", "sim_disp",
         "hold_sim", "hold_sim_disp", "hold_sim_settle", "hold_sim_ruled", "hold_sim_mu05",
-        "hold_sim_mu3", "hold_sim_axes"]
+        "hold_sim_mu3", "hold_sim_weak", "hold_sim_strong", "hold_sim_axes"]
     assert [r.reference for r in phys.rows] == [False] * 2 + [True] * 3  # gt and two controls
     assert [(g.row, g.min, g.max, g.between) for g in phys.gates] == [
         ("Ground truth", 80.0, None, None), ("Flat hand (control)", None, 5.0, None),

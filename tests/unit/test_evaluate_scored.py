@@ -52,7 +52,8 @@ def test_rows_equal_those_of_whole_tracks(data, monkeypatch):
     lib, seqs = data
     # hold_sim stays in; its friction and direction rows reuse its scenes and would only
     # triple the simulations (test_metrics_hold_qs checks them)
-    variants = ("hold_sim_mu05", "hold_sim_mu3", "hold_sim_axes")
+    variants = ("hold_sim_mu05", "hold_sim_mu3", "hold_sim_weak", "hold_sim_strong",
+                "hold_sim_axes")
     opts = E.EvalOptions(metrics=tuple(m for m in E.METRICS.names() if m not in variants),
                          max_physics_frames=2)
 

@@ -424,15 +424,54 @@ def test_hold_sim_is_nan_and_counted_where_the_test_cannot_run(fixture, monkeypa
     assert any(note in k for k in failures.reasons)
 
 
-def test_hold_sim_friction_and_direction_variants_match_a_naive_loop(fixture):
-    """``hold_sim_mu05`` / ``hold_sim_mu3`` / ``hold_sim_axes`` against ``hold.hold`` called
-    directly on each drawn frame's scene (one settle per friction and per direction here,
-    where the metric shares the settle of a frame's six directions: the settle is
-    deterministic, so the verdicts agree); the world's gravity is one of the six; the flat
-    hand holds under none of them."""
+def _servos(model) -> list[np.ndarray]:
+    return [model.actuator_gainprm.copy(), model.actuator_biasprm.copy(),
+            model.actuator_forcerange.copy()]
+
+
+def test_grip_strength_equals_a_scene_compiled_with_those_servos(fixture, monkeypatch):
+    """``hold(..., grip=f)`` on a compiled scene gives the result of a scene compiled with
+    the servo constants scaled as ``servo_strength`` says (gain and cap x f, damping x
+    sqrt f): the same run, bit for bit; grip 1 is the committed test; the scene's servos are
+    restored after each run. On the mug's first tested frame a hundredth of the grip drops
+    what the committed grip holds, and the strongest row holds it too, moving it less."""
+    lib, seqs = fixture
+    pair = SequencePair(seqs[0], seqs[0], lib, FEW, FailureCounter())
+    t = int(physics_frames(pair, "right")[0])
+    hands, up = posed_hands(pair, t), pair.options.up
+    scene = H.hand_scene(hands, pair.mesh, object_pose(pair, t), up)
+    before = _servos(scene.model)
+    base = H.hold(scene, up)[0]
+    assert H.hold(scene, up, grip=1.0)[0] == base
+    got = {f: H.hold(scene, up, grip=f)[0] for f in (*C.HOLD_GRIP_SENSITIVITY, 0.01)}
+    assert all(np.array_equal(a, b) for a, b in zip(_servos(scene.model), before, strict=True))
+    kp, kv, cap = C.HOLD_FINGER_KP, C.HOLD_FINGER_KV, C.HOLD_FINGER_TORQUE
+    for f, res in got.items():
+        monkeypatch.setattr(C, "HOLD_FINGER_KP", kp * f)
+        monkeypatch.setattr(C, "HOLD_FINGER_KV", kv * np.sqrt(f))
+        monkeypatch.setattr(C, "HOLD_FINGER_TORQUE", cap * f)
+        compiled = H.hand_scene(hands, pair.mesh, object_pose(pair, t), up)
+        assert H.hold(compiled, up)[0] == res, f
+    assert base.held and not got[0.01].held
+    strong = got[C.HOLD_GRIP_SENSITIVITY[1]]
+    assert strong.held and strong.displacement <= base.displacement
+    friction = scene.model.geom_friction.copy()
+    with pytest.raises(ValueError, match="grip strength"):
+        H.hold(scene, up, friction=0.5, grip=0.0)
+    assert np.array_equal(scene.model.geom_friction, friction)
+
+
+def test_hold_sim_friction_grip_and_direction_variants_match_a_naive_loop(fixture):
+    """``hold_sim_mu05`` / ``hold_sim_mu3`` / ``hold_sim_weak`` / ``hold_sim_strong`` /
+    ``hold_sim_axes`` against ``hold.hold`` called directly on each drawn frame's scene (one
+    settle per friction, grip and direction here, where the metric shares the settle of a
+    frame's six directions: the settle is deterministic, so the verdicts agree); the world's
+    gravity is one of the six; the flat hand holds under none of them."""
     lib, seqs = fixture
     cylinder = seqs[1]
-    ids = ("hold_sim", "hold_sim_mu05", "hold_sim_mu3", "hold_sim_axes")
+    ids = ("hold_sim", "hold_sim_mu05", "hold_sim_mu3", "hold_sim_weak", "hold_sim_strong",
+           "hold_sim_axes")
+    weak, strong = C.HOLD_GRIP_SENSITIVITY
     for pred in (cylinder, _flat(cylinder)):
         rows, _ = evaluate_sequence(pred, cylinder, lib, options=EvalOptions(
             metrics=ids, max_physics_frames=FEW.max_physics_frames))
@@ -445,6 +484,8 @@ def test_hold_sim_friction_and_direction_variants_match_a_naive_loop(fixture):
                                  object_pose(pair, int(t)), pair.options.up)
             for m, mu in (("hold_sim", 1.0), ("hold_sim_mu05", 0.5), ("hold_sim_mu3", 3.0)):
                 want[m].append(H.hold(scene, pair.options.up, friction=mu)[0].held)
+            for m, grip in (("hold_sim_weak", weak), ("hold_sim_strong", strong)):
+                want[m].append(H.hold(scene, pair.options.up, grip=grip)[0].held)
             axes = [H.hold(scene, pair.options.up, (a,))[0].held for a in H.AXES]
             want["hold_sim_axes"].append(np.mean(axes))
             world = H.AXES.index("-y")  # SynthGRAB is y-up: world gravity pulls along -y

@@ -7,7 +7,8 @@ IDS = [
     "mpjpe", "mpvpe", "cc", "contact_drift", "cdev", "iv", "pen_depth", "contact_ratio",
     "contact_ratio_strict", "hold_qs", "hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes",
     "sim_stable", "sim_disp", "hold_sim", "hold_sim_disp", "hold_sim_settle",
-    "hold_sim_ruled", "hold_sim_mu05", "hold_sim_mu3", "hold_sim_axes", "jitter", "accel_err",
+    "hold_sim_ruled", "hold_sim_mu05", "hold_sim_mu3", "hold_sim_weak", "hold_sim_strong",
+    "hold_sim_axes", "jitter", "accel_err",
 ]
 
 

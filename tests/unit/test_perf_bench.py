@@ -175,7 +175,7 @@ def test_data_that_is_not_a_dataset_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "b").exists()
 
 
-@pytest.mark.slow  # a scene and nine simulated holds per tested frame (~40 s)
+@pytest.mark.slow  # a scene and eleven simulated holds per tested frame (~40 s)
 def test_dataset_hold_row_times_the_tested_frames(tmp_path, monkeypatch):
     """The --data row times an even spread of the split's tested frames (all of them when
     fewer than the quick count), against the issue's goal, and names the data and split."""
@@ -191,6 +191,7 @@ def test_dataset_hold_row_times_the_tested_frames(tmp_path, monkeypatch):
     assert 0 < n and f"({min(n, perf.DATA_TESTS_QUICK)} tested frames, 1 core)" in row.stage
     assert "data test split" in row.stage and row.rate > 0
     assert row.goal is not None and row.goal.value == 20.0
-    # the run's eight tests a scene share its build: more tests a second, no goal of its own
-    assert "as a run computes them (8 a scene)" in as_run.stage and as_run.goal is None
+    # the run's ten tests a scene (six directions, two frictions, two grips) share its
+    # build: more tests a second, no goal of its own
+    assert "as a run computes them (10 a scene)" in as_run.stage and as_run.goal is None
     assert as_run.rate > row.rate

@@ -9,7 +9,7 @@ from grip_bench.metrics.registry import METRICS
 
 PHYSICS = {"hold_qs", "hold_qs_mu05", "hold_qs_mu3", "hold_qs_axes", "sim_stable", "sim_disp",
            "hold_sim", "hold_sim_disp", "hold_sim_settle", "hold_sim_ruled", "hold_sim_mu05",
-           "hold_sim_mu3", "hold_sim_axes"}
+           "hold_sim_mu3", "hold_sim_weak", "hold_sim_strong", "hold_sim_axes"}
 
 
 def test_perturbed_sets_get_only_what_a_table_reads_for_that_method(tmp_path):
