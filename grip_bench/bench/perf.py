@@ -883,7 +883,7 @@ def _dataset_hold(settings: Settings, core: str, progress: Progress) -> list[Row
     ``--quick``), spread evenly over all of them. Issue #15 states its goal on the default data,
     where most objects fall and a test stops once they fall free, so the first row (one test
     a scene) is the goal's measure; the second times the same frames as a run computes them
-    (a scene's eight tests, ``as_run``)."""
+    (a scene's ten tests, ``as_run``)."""
     data = Path(settings.data)
     progress(f"reading the {settings.data_split} split of {data}")
     chosen = [(pair, t) for pair, frames in tested_frames(data, settings.data_split,
