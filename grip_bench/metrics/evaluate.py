@@ -543,7 +543,7 @@ def _qs_contacts(pair: SequencePair, t: int) -> tuple | None:
     pseudonormals (K, 3), the centre of mass (3,), the mass (kg), and the prediction's
     object rotation (3, 3) (row-vector convention); None for a non-finite hand. Every
     predicted hand the GT holds with at ``t`` is in (a bimanual frame is one test)."""
-    from ..geometry.wrench import hold_contacts
+    from ..geometry.pieces import vertex_normals
     from .physics import _object_inertia
 
     key = (t, "quasi-static contacts")
@@ -552,16 +552,45 @@ def _qs_contacts(pair: SequencePair, t: int) -> tuple | None:
         tracks = [pair.track("pred", s) for s in sides]
         local = np.concatenate([tr.local[t] for tr in tracks])
         sd = np.concatenate([tr.sd[t] for tr in tracks])  # exact below 5 mm
-        if not np.isfinite(sd).all():
+        if not (np.isfinite(sd).all() and np.isfinite(local).all()):
             pair._sims[key] = None
             return None
         # each hand's bones are rigid parts of their own (hold_qs v2: one side of the material)
         bones = np.concatenate([_bone_ids(pair.poser, s, len(tr.local[t])) + 100 * k
                                 for k, (s, tr) in enumerate(zip(sides, tracks, strict=True))])
+        normals = np.concatenate([vertex_normals(tr.local[t], pair.poser.faces(s))
+                                  for s, tr in zip(sides, tracks, strict=True)])
         mass, com, _ = _object_inertia(pair.mesh, C.DEFAULT_DENSITY)
-        pair._sims[key] = (*hold_contacts(pair.field, local, sd, bones), com, mass,
+        pair._sims[key] = (*_facing_contacts(pair.field, local, sd, normals, bones), com, mass,
                            pair.pred_rotations[t])
     return pair._sims[key]
+
+
+def _facing_contacts(field: DistanceField, points: np.ndarray, sd: np.ndarray,
+                     normals: np.ndarray, bones: np.ndarray
+                     ) -> tuple[float, np.ndarray, np.ndarray]:
+    """``geometry.wrench.hold_contacts`` (the hand's points (V, 3) m within ``HOLD_TOUCH``
+    of the object, outside or inside; each bone's reduced to one side of the material)
+    keeping only the points whose hand surface faces the object's (hold_qs v3, s52): their
+    outward ``normals`` (V, 3) and the object's outward normal at the closest point do not
+    point the same way. Surfaces in contact face each other; a point whose normal agrees
+    with the object's is the hand's far side, or a finger sunk past the middle of a thin
+    wall, whose nearest face is the far one (its force would pull the wall toward the
+    hand: the wedge the articulated test's rule fails, docs/physics_hold.md, "Landed in
+    s52"). Returns the depth (m, every point's), the contacts' closest points and normals.
+    The rule lives here, not in ``hold_contacts``, which SynthGRAB 2.4's grasp choice shares:
+    its data stays as it was."""
+    from ..geometry.wrench import one_sided
+
+    near = sd <= C.HOLD_TOUCH
+    _, closest, normal = field.exact_contacts(points[near])
+    unit = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    face = np.einsum("ij,ij->i", normals[near], unit) <= 0.0
+    closest, normal = closest[face], normal[face]
+    if len(closest):
+        keep = one_sided(closest, normal, bones[near][face], sd[near][face])
+        closest, normal = closest[keep], normal[keep]
+    return -float(sd.min()), closest, normal
 
 
 def quasi_static_frame(pair: SequencePair, t: int, mu: float = C.SIM_FRICTION,
@@ -618,13 +647,14 @@ def _qs(pair: SequencePair, side: str, mu: float, axes: bool = False) -> Measure
 
 _QS_DEF = ("hand vertices within 2 mm of the object (the deepest <= 5 mm inside; each "
            "rigid bone's on one side of the object's material: a bone across an edge or a "
-           "thin wall presses one face, not both) admit "
+           "thin wall presses one face, not both; v3: only vertices whose surface faces the "
+           "object's, not a finger's far side or one sunk past the middle of a thin wall) admit "
            "contact forces in friction cones of mu = {mu} that hold the object against "
            "{g} with zero net torque (no force cap; both hands of a "
            "bimanual frame together; [run] physics_frames held frames)")
 
 
-@metric("hold_qs", "Quasi-static hold", "%", 1e2, True, "held", 2,
+@metric("hold_qs", "Quasi-static hold", "%", 1e2, True, "held", 3,
         "share of tested held frames whose " + _QS_DEF.format(mu=1, g="gravity"))
 def m_hold_qs(pair: SequencePair, side: str) -> Measured:
     return _qs(pair, side, C.SIM_FRICTION)
@@ -642,11 +672,11 @@ def _friction_rows(base: str, name: str, version: int, what: str,
             lambda pair, side, mu=mu: compute(pair, side, mu))
 
 
-_friction_rows("hold_qs", "Quasi-static hold", 2,
+_friction_rows("hold_qs", "Quasi-static hold", 3,
                "share of frames whose " + _QS_DEF.replace("{g}", "gravity"), _qs)
 
 
-@metric("hold_qs_axes", "Quasi-static hold (6 gravity directions)", "%", 1e2, True, "held", 2,
+@metric("hold_qs_axes", "Quasi-static hold (6 gravity directions)", "%", 1e2, True, "held", 3,
         "robustness of hold_qs (physics table only): share of (frame, direction) tests, "
         "gravity along each of the world's six axis directions, whose "
         + _QS_DEF.format(mu=1, g="that gravity"), leaderboard=False)

@@ -57,6 +57,63 @@ def test_a_pinch_holds_one_side_does_not_and_a_palm_below_supports():
     assert not W.can_hold(0.0, *pinch, np.zeros(3), LOAD, mu=0.0)
 
 
+def _naive_facing(mesh, points, sd, normals) -> np.ndarray:
+    """Reference for ``_facing_contacts``' choice, one point at a time with trimesh: the
+    points within ``HOLD_TOUCH`` whose closest face's normal and own normal do not point
+    the same way, as their closest points (K, 3)."""
+    import trimesh
+
+    out = []
+    for p, d, n in zip(points, sd, normals, strict=True):
+        if d > C.HOLD_TOUCH:
+            continue
+        closest, _, face = trimesh.proximity.closest_point(mesh, p[None])
+        if mesh.face_normals[face[0]] @ n <= 0.0:
+            out.append(closest[0])
+    return np.asarray(out).reshape(-1, 3)
+
+
+def test_facing_contacts_drop_a_far_side_and_a_finger_past_a_walls_middle():
+    """hold_qs v3 on analytic shapes: a 2.5 mm wall (x in [0, 2.5] mm) and a flat pad's two
+    faces (normals -x and +x) at depths along x. The pad face pressing the wall's near face
+    (x = 0) from outside and sunk 1 mm (short of the middle) counts; the pad's far side,
+    1 mm away, does not; a pad sunk 1.6 mm (past the middle, nearest the far face) does not,
+    where ``hold_contacts`` counted it with the far face's normal. Matches a naive
+    per-point loop on every case."""
+    import trimesh
+
+    from grip_bench.geometry.distance import DistanceField
+    from grip_bench.geometry.wrench import hold_contacts
+    from grip_bench.metrics.evaluate import _facing_contacts
+
+    wall = trimesh.creation.box(extents=[0.0025, 0.04, 0.04])
+    wall.apply_translation([0.00125, 0.0, 0.0])
+    field = DistanceField(wall)
+    u = np.linspace(-0.005, 0.005, 4)
+    grid = np.stack(np.meshgrid(u, u), -1).reshape(-1, 2)
+
+    def pad(x: float, nx: float) -> tuple[np.ndarray, np.ndarray]:
+        pts = np.column_stack([np.full(len(grid), x), grid])
+        return pts, np.tile([nx, 0.0, 0.0], (len(grid), 1))
+
+    cases = {"pressing": (pad(-0.0005, 1.0), True), "sunk 1 mm": (pad(0.001, 1.0), True),
+             "far side": (pad(-0.001, -1.0), False), "past the middle": (pad(0.0016, 1.0), False)}
+    for name, ((pts, nrm), kept) in cases.items():
+        sd = field.exact_signed_distance(pts)
+        bones = np.arange(len(pts))  # no straddles: one_sided keeps every point
+        depth, closest, _ = _facing_contacts(field, pts, sd, nrm, bones)
+        assert depth == pytest.approx(-sd.min()), name
+        assert (len(closest) == len(pts)) == kept and (len(closest) == 0) == (not kept), name
+        np.testing.assert_allclose(np.sort(closest, 0), np.sort(_naive_facing(wall, pts, sd,
+                                                                                nrm), 0),
+                                   atol=1e-9, err_msg=name)
+    # the unfiltered contacts of v2 took the sunk pad past the middle at the far face
+    pts, nrm = cases["past the middle"][0]
+    _, closest, normal = hold_contacts(field, pts, field.exact_signed_distance(pts))
+    unit = normal / np.linalg.norm(normal, axis=1, keepdims=True)  # pseudonormals: a sum
+    assert len(closest) == len(pts) and np.allclose(unit[:, 0], 1.0)  # on the faces' diagonal
+
+
 def test_too_deep_or_no_contact_fails():
     pinch = _contacts((0, 1.0), (0, -1.0))
     assert W.can_hold(C.HOLD_MAX_DEPTH, *pinch, np.zeros(3), LOAD)
