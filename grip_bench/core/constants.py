@@ -156,11 +156,11 @@ HOLD_BONE_MASS = 0.005  # kg per finger bone (gravity-compensated: the hand does
 HOLD_CONE_EDGES = 8  # edges of the linearised friction cone (geometry.wrench, the force check)
 HOLD_MAX_DEPTH = 0.005  # m; a hand whose deepest vertex is further inside is not holding (qs, sim)
 HOLD_MU_SENSITIVITY = (0.5, 3.0)  # friction of the hold check's sensitivity columns (1: reported)
-# Grip-strength sensitivity of the articulated hold (hold_sim_grip*): the finger servos' gain
-# and torque cap scaled by these factors together (the damping by the root, keeping the
-# damping ratio). x3 is 0.9 N m a joint, near a human finger's ~1 N m at most; x1/3 a light
-# touch. The servo model is a free parameter, so the verdict's dependence on it is reported,
-# not tuned (docs/physics_hold.md, s52).
+# Grip-strength sensitivity of the articulated hold (hold_sim_weak / hold_sim_strong): the
+# finger servos' gain and torque cap scaled by these factors together (the damping by the
+# root, keeping the damping ratio). x3 is 0.9 N m a joint, near a human finger's ~1 N m at
+# most; x1/3 a light touch. The servo model is a free parameter, so the verdict's dependence
+# on it is reported, not tuned (docs/physics_hold.md, s52).
 HOLD_GRIP_SENSITIVITY = (1.0 / 3.0, 3.0)
 # The wedge rule (metrics.hold.inward_force): settled contacts pushing the hands *into* the
 # object with more than this many object weights mean a finger wedged inside a thin wall,

@@ -816,10 +816,10 @@ def _hold_runs(pair: SequencePair, t: int, mu: float, axes: tuple[str | None, ..
     return [pair._sims[keys[a]] for a in axes]
 
 
-def _hold_sim(pair: SequencePair, side: str, mu: float = C.SIM_FRICTION
+def _hold_sim(pair: SequencePair, side: str, mu: float = C.SIM_FRICTION, grip: float = 1.0
               ) -> tuple[np.ndarray, list[HoldResult | None]]:
     idx = physics_frames(pair, side)
-    return idx, [hold_frame(pair, int(t), mu) for t in idx]
+    return idx, [hold_frame(pair, int(t), mu, None, grip) for t in idx]
 
 
 def _held(res: list[HoldResult | None]) -> np.ndarray:
@@ -841,8 +841,8 @@ def m_hold_sim(pair: SequencePair, side: str) -> Measured:
     return _sim_share(pair, side, C.SIM_FRICTION)
 
 
-def _sim_share(pair: SequencePair, side: str, mu: float) -> Measured:
-    idx, res = _hold_sim(pair, side, mu)
+def _sim_share(pair: SequencePair, side: str, mu: float, grip: float = 1.0) -> Measured:
+    idx, res = _hold_sim(pair, side, mu, grip)
     return Measured(idx, _held(res))
 
 
@@ -917,13 +917,7 @@ def _grip_rows() -> None:
                "strength; grip-strength sensitivity, physics table only): share of tested "
                "held frames where " + _HOLD_DEF.format(g="the frame's gravity", mu=1),
                leaderboard=False)(
-            lambda pair, side, f=f: _grip_share(pair, side, f))
-
-
-def _grip_share(pair: SequencePair, side: str, grip: float) -> Measured:
-    idx = physics_frames(pair, side)
-    return Measured(idx, _held([hold_frame(pair, int(t), C.SIM_FRICTION, None, grip)
-                                for t in idx]))
+            lambda pair, side, f=f: _sim_share(pair, side, C.SIM_FRICTION, f))
 
 
 _grip_rows()
