@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 DESCRIPTION = """\
@@ -28,7 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "each costs ~2 s per level without --physics)")
     p.add_argument("--seed", type=int, default=0, help="noise and bootstrap seed (default 0)")
     p.add_argument("--physics", action="store_true",
-                   help="include the MuJoCo metrics (2 held frames per sequence and hand)")
+                   help="include the physics metrics (the quasi-static check on 8 held "
+                        "frames per sequence and hand, the MuJoCo tests on 2 of them)")
     p.add_argument("--max-iv-frames", type=int, default=4, metavar="K",
                    help="exact intersection volumes per sequence and hand (default 4)")
     p.add_argument("--workers", type=int, default=1, metavar="N",
@@ -41,12 +43,10 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from ..core.io import atomic_write_text
-    from ..metrics.evaluate import EvalOptions
-    from ..metrics.validity import check_validity, metric_validity
+    from ..metrics.validity import check_validity, metric_validity, validity_options
     from ..report.validity import write_validity
 
-    options = EvalOptions(physics=args.physics, max_physics_frames=2,
-                          max_iv_frames=args.max_iv_frames)
+    options = replace(validity_options(physics=args.physics), max_iv_frames=args.max_iv_frames)
     df = metric_validity(str(args.data), args.split, args.sequences, args.seed, options,
                          progress=sys.stderr.isatty(), workers=args.workers)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -339,6 +339,14 @@ def evaluate_dirs(pred_dir: str | os.PathLike, gt_dir: str | os.PathLike,
     return info
 
 
+def _physics_subsampling(options: EvalOptions) -> str:
+    """The manifest's line on the physics frames (``metrics.evaluate.physics_frames``)."""
+    sim = options.max_physics_frames if options.max_sim_frames is None else min(
+        options.max_sim_frames, options.max_physics_frames)
+    return (f"physics tests on at most {options.max_physics_frames} held frames per sequence "
+            f"and hand, drawn with seed {options.physics_seed}; MuJoCo on at most {sim} of them")
+
+
 def _summary(
     labels: RowLabels,
     options: EvalOptions,
@@ -359,8 +367,7 @@ def _summary(
         "gt_dir": str(gt_dir.resolve()), "gt_dataset_hash": dataset_hash(gt_dir),
         "pred_dir": str(pred_dir.resolve()), "pred_manifest": pred_manifest or None,
         "options": {**asdict(options), "metric_ids": options.metric_ids()},
-        "physics_subsampling": f"MuJoCo tests on at most {options.max_physics_frames} evenly "
-                               "spaced grasp frames per sequence and hand",
+        "physics_subsampling": _physics_subsampling(options),
         "iv_subsampling": (f"exact intersection volume on at most {options.max_iv_frames} evenly "
                            "spaced grasp frames per sequence and hand" if options.max_iv_frames
                            else "exact intersection volume on every grasp frame"),

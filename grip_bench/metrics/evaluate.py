@@ -23,8 +23,9 @@ Contact drift follows the ground truth's contact vertices (the same for every me
 object's frame (ARCTIC's MDev on contacts): GT against itself is 0, and a method that never
 touches is measured on the same vertices, so it cannot score 0 by not touching.
 
-Physics (MuJoCo) runs on at most ``EvalOptions.max_physics_frames`` held frames per sequence
-and hand, drawn with a seed (``EvalOptions.physics_seed``, the sequence and the hand); in
+Physics runs on at most ``EvalOptions.max_physics_frames`` held frames per sequence and hand,
+drawn with a seed (``EvalOptions.physics_seed``, the sequence and the hand; the MuJoCo tests on
+``max_sim_frames`` of them where that is smaller: :func:`sim_frames`); in
 frames where both GT hands hold, both predicted hands are in the scene and the test is
 shared by the two hands.
 """
@@ -83,7 +84,9 @@ class EvalOptions:
     """What to compute. ``metrics``: ids (None = every registered metric, registry order);
     ``iv`` / ``physics``: switch the intersection volume / physics metrics (MuJoCo and the
     quasi-static hold check: ``PHYSICS_METRICS``) off wholesale;
-    ``max_physics_frames``: MuJoCo tests per sequence and hand; ``max_iv_frames``: exact
+    ``max_physics_frames``: physics-tested held frames per sequence and hand (the quasi-static
+    check's; the MuJoCo tests' too unless ``max_sim_frames``, a smaller budget for the
+    simulations, draws fewer among them: :func:`sim_frames`); ``max_iv_frames``: exact
     intersection volumes per sequence and hand (evenly spaced grasp frames, 0 = every grasp
     frame; a sample of a smooth 30 fps motion); ``model_path``: MANO /
     SMPL-X models for ``body_model == "smplx"`` data; ``up``: the world's up axis for gravity
@@ -92,6 +95,7 @@ class EvalOptions:
 
     metrics: tuple[str, ...] | None = None
     max_physics_frames: int = C.EVAL_MAX_PHYSICS_FRAMES
+    max_sim_frames: int | None = None
     max_iv_frames: int = 0
     iv: bool = True
     physics: bool = True
@@ -505,13 +509,28 @@ def evenly_spaced(mask: np.ndarray, k: int) -> np.ndarray:
 def physics_frames(pair: SequencePair, side: str) -> np.ndarray:
     """At most ``max_physics_frames`` held frames of ``side``, drawn without replacement with
     a generator seeded by ``physics_seed``, the sequence name and the hand (sorted)."""
+    return _draw(pair, side, np.flatnonzero(pair.held(side)), pair.options.max_physics_frames)
+
+
+def sim_frames(pair: SequencePair, side: str) -> np.ndarray:
+    """The frames the MuJoCo tests run on: :func:`physics_frames`, or, where
+    ``max_sim_frames`` is smaller, that many of them drawn like them (a second seeded draw,
+    so the simulated frames are quasi-static-tested frames too). The metric-validity report
+    gives the simulations the smaller budget: they cost ~0.3 s a test, the quasi-static
+    check milliseconds (docs/contract.md, "Metric validity")."""
+    idx = physics_frames(pair, side)
+    k = pair.options.max_sim_frames
+    return idx if k is None else _draw(pair, side, idx, k, "|sim")
+
+
+def _draw(pair: SequencePair, side: str, idx: np.ndarray, k: int, tag: str = "") -> np.ndarray:
+    """At most ``k`` of the frames ``idx``, sorted, drawn without replacement with a
+    generator seeded by ``physics_seed``, the sequence name, the hand and ``tag``."""
     import zlib
 
-    idx = np.flatnonzero(pair.held(side))
-    k = pair.options.max_physics_frames
     if len(idx) <= k:
         return idx
-    salt = zlib.crc32(f"{pair.gt.name}|{side}".encode())
+    salt = zlib.crc32(f"{pair.gt.name}|{side}{tag}".encode())
     rng = np.random.default_rng([pair.options.physics_seed, salt])
     return np.sort(rng.choice(idx, size=k, replace=False))
 
@@ -733,7 +752,7 @@ def posed_hands(pair: SequencePair, t: int) -> list:
 def _sim(pair: SequencePair, side: str, protocol: str, attr: str) -> Measured:
     """Per tested frame: ``stable`` (a diverged run is unstable) or the displacement (a
     diverged run counts as ``SIM_DISP_CAP``: the worst grasps must not vanish from a mean)."""
-    idx = physics_frames(pair, side)
+    idx = sim_frames(pair, side)
     vals = []
     for t in idx:
         res = simulate_frame(pair, int(t), protocol)
@@ -761,7 +780,7 @@ def m_sim_disp(pair: SequencePair, side: str) -> Measured:
 def hold_scene(pair: SequencePair, t: int) -> Scene | None:
     """The articulated hold test's compiled scene (``metrics.hold.hand_scene``) of frame
     ``t`` with every predicted hand the GT holds with there, cached per frame (its gravity,
-    friction variants and directions reuse it; at most ``2 max_physics_frames`` a sequence);
+    friction variants and directions reuse it; at most two hands' :func:`sim_frames` a sequence);
     None where it cannot be built: a non-finite hand, a hand model whose template lacks the
     track's vertices or a scene MuJoCo will not compile (the latter two counted as failure
     notes)."""
@@ -818,7 +837,7 @@ def _hold_runs(pair: SequencePair, t: int, mu: float, axes: tuple[str | None, ..
 
 def _hold_sim(pair: SequencePair, side: str, mu: float = C.SIM_FRICTION, grip: float = 1.0
               ) -> tuple[np.ndarray, list[HoldResult | None]]:
-    idx = physics_frames(pair, side)
+    idx = sim_frames(pair, side)
     return idx, [hold_frame(pair, int(t), mu, None, grip) for t in idx]
 
 
@@ -930,7 +949,7 @@ _grip_rows()
 def m_hold_sim_axes(pair: SequencePair, side: str) -> Measured:
     from .hold import AXES
 
-    idx = physics_frames(pair, side)
+    idx = sim_frames(pair, side)
     vals = [np.mean(_held(_hold_runs(pair, int(t), C.SIM_FRICTION, AXES))) for t in idx]
     return Measured(idx, np.asarray(vals, dtype=np.float64))
 

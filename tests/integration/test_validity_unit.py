@@ -43,6 +43,7 @@ def test_the_unit_is_keyed_by_data_sequences_seed_levels_and_code(tmp_path):
     assert inputs["code"] == stage_code("validity")
     options = inputs["options"]
     assert options["max_physics_frames"] == V.VALIDITY_PHYSICS_FRAMES
+    assert options["max_sim_frames"] == V.VALIDITY_SIM_FRAMES < V.VALIDITY_PHYSICS_FRAMES
     assert options["max_iv_frames"] == V.VALIDITY_IV_FRAMES
     assert options["metrics"] == ("mpjpe", "mpvpe", "cc", "contact_ratio")  # the run's metrics
     assert set(inputs["versions"]) == set(options["metrics"])

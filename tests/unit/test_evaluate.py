@@ -185,6 +185,35 @@ def test_evenly_spaced_frames_and_seeded_physics_frames(data):
     np.testing.assert_array_equal(draw(0, k=100), held)  # fewer held frames than k: all
 
 
+def test_sim_frames_are_a_seeded_draw_among_the_physics_frames(data):
+    """The MuJoCo tests' frames: the physics frames themselves unless ``max_sim_frames`` is
+    smaller, then that many of them, drawn with the seed (the validity report's budget)."""
+    lib, seqs = data
+    gt = seqs["mug"]
+
+    def frames(**kw):
+        pair = E.SequencePair(gt, gt, lib, E.EvalOptions(**kw), I.FailureCounter())
+        return E.physics_frames(pair, "right"), E.sim_frames(pair, "right")
+
+    qs, sim = frames(max_physics_frames=6)
+    np.testing.assert_array_equal(qs, sim)  # no sim budget: the same frames
+    qs, sim = frames(max_physics_frames=6, max_sim_frames=2)
+    assert len(qs) == 6 and len(sim) == 2 and set(sim) <= set(qs) and list(sim) == sorted(sim)
+    again = frames(max_physics_frames=6, max_sim_frames=2)
+    np.testing.assert_array_equal(sim, again[1])  # deterministic
+    assert any(not np.array_equal(sim, frames(max_physics_frames=6, max_sim_frames=2,
+                                              physics_seed=s)[1]) for s in range(1, 6))
+    np.testing.assert_array_equal(frames(max_physics_frames=6, max_sim_frames=50)[1], qs)
+    # the MuJoCo metrics run on the sim frames, the quasi-static check on every physics frame
+    pair = E.SequencePair(gt, gt, lib, E.EvalOptions(max_physics_frames=3, max_sim_frames=1),
+                          I.FailureCounter())
+    qs = E.physics_frames(pair, "right")
+    np.testing.assert_array_equal(E.m_hold_qs(pair, "right").frames, qs)
+    for m in (E.m_hold_sim, E.m_hold_sim_axes, E.m_sim_stable):
+        np.testing.assert_array_equal(m(pair, "right").frames, E.sim_frames(pair, "right"))
+    assert len(E.sim_frames(pair, "right")) == 1
+
+
 def test_metric_selection_and_errors(data):
     lib, seqs = data
     gt = seqs["mug"]
