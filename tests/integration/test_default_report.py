@@ -54,8 +54,11 @@ def test_ground_truth_ranks_best_on_the_articulated_hold_displacement():
     truth's 57 mm in the physics table, and fingers closed 0.1 rad into the object lowered
     ground truth's 64 mm to 10 mm in the validity report. On the committed report ground
     truth's per-sequence medians are the lowest of the table's rows, and no degradation of
-    ground truth at any level scores below the undegraded value."""
+    ground truth at any level scores below the undegraded value by more than the validity
+    report's tie tolerance (s53: 1 mm of jitter gives 76.681 against 76.682 mm, a tie)."""
     import pandas as pd
+
+    from grip_bench.metrics import validity as V
 
     phys = pd.read_csv(REPORT / "tables" / "physics.csv")
     disp = phys[phys.metric == "hold_sim_disp"].set_index("row").value
@@ -64,15 +67,18 @@ def test_ground_truth_ranks_best_on_the_articulated_hold_displacement():
     val = val[val.metric == "hold_sim_disp"]
     clean = val[val.level == 0].value
     assert clean.nunique() == 1  # every degradation's level 0 is ground truth itself
-    assert (val[val.level > 0].value >= clean.iloc[0]).all()
+    tie = V.tolerance("mm", clean.iloc[0])
+    assert (val[val.level > 0].value >= clean.iloc[0] - tie).all()
 
 
 def test_the_validity_report_judges_the_articulated_test_and_it_passes():
     """Since s51 the validity report holds ``hold_sim`` and ``hold_sim_disp`` to the
     quasi-static check's claims. On the committed report the responses carry those claims,
     none of them breaks, and ground truth is the articulated test's best row under every
-    degradation; the broken claims are the three known ones (docs/contract.md; since
-    ``hold_qs`` v3, s52, its claim under opening holds)."""
+    degradation; the broken claim is the one known (docs/contract.md: since s53 the report
+    degrades 16 sequences, the quasi-static check on 8 frames a hand, and `hold_qs`'s
+    claims under pushing and jitter and `pen_depth`'s under closing hold; closing by 0.4 rad
+    takes a thin part's fingers through it, off the strict contact band)."""
     import pandas as pd
 
     from grip_bench.metrics import validity as V
@@ -86,7 +92,6 @@ def test_the_validity_report_judges_the_articulated_test_and_it_passes():
                                 zip(val.degradation, val.metric, strict=True)]).all()
     broken = V.check_validity(val)
     assert not [b for b in broken if b.startswith("hold_sim")], broken
-    assert sorted(b.split(":")[0] for b in broken) == [
-        "hold_qs", "hold_qs under jitter", "hold_qs under push", "pen_depth under close"]
+    assert sorted(b.split(":")[0] for b in broken) == ["contact_ratio_strict under close"]
     held = val[val.metric == "hold_sim"]
     assert (held[held.level > 0].value <= held[held.level == 0].value.iloc[0]).all()
