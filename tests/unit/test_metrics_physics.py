@@ -117,7 +117,7 @@ def test_diverged_runs_count_as_the_cap_never_dropped(monkeypatch):
     results = {0: StabilityResult(0.0005, True, False), 2: StabilityResult(float("nan"), False,
                                                                            True)}
     monkeypatch.setattr(evaluate, "simulate_frame", lambda pair, t, protocol: results[t])
-    monkeypatch.setattr(evaluate, "physics_frames", lambda pair, side: np.array([0, 2]))
+    monkeypatch.setattr(evaluate, "sim_frames", lambda pair, side: np.array([0, 2]))
     pair = SimpleNamespace()
     disp = evaluate._sim(pair, "right", "paper", "displacement")
     stable = evaluate._sim(pair, "right", "paper", "stable")
