@@ -78,7 +78,8 @@ def test_the_validity_report_judges_the_articulated_test_and_it_passes():
     degradation; the broken claim is the one known (docs/contract.md: since s53 the report
     degrades 16 sequences, the quasi-static check on 8 frames a hand, and `hold_qs`'s
     claims under pushing and jitter and `pen_depth`'s under closing hold; closing by 0.4 rad
-    takes a thin part's fingers through it, off the strict contact band)."""
+    takes a banana's index and middle fingers through its thin end, off the strict
+    contact band)."""
     import pandas as pd
 
     from grip_bench.metrics import validity as V
