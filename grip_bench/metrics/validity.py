@@ -46,7 +46,7 @@ if TYPE_CHECKING:
 # The run's validity unit (bench.stages.validity) and ``grip-bench validity --physics``
 # evaluate the physics metrics on VALIDITY_PHYSICS_FRAMES held frames per sequence and hand,
 # the MuJoCo tests on VALIDITY_SIM_FRAMES of them (``EvalOptions.max_sim_frames``). A MuJoCo
-# test costs ~0.3 s and every level of every degradation is one evaluation (7 x 3 + 1 per
+# test costs ~0.3 s and every level of every degradation is one evaluation (8 x 3 + 1 per
 # sequence), so the simulations keep 2 frames; the quasi-static check costs milliseconds and
 # takes the run's own 8 (s53: with 2, one frame of one sequence weighed 6 points on the
 # default report's 8 sequences, six times the 1-point tolerance of "%", and its two broken
