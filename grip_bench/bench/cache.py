@@ -30,6 +30,7 @@ from typing import Any
 from ..core.constants import CACHE_SCHEMA_VERSION
 from ..core.errors import InputError
 from ..core.io import WRITE_ERRNOS, WriteError, jsonable
+from ..core.numerics import key as numerics_key
 from ..core.version import __version__
 
 # Part of every key: a new release or cache layout invalidates old units instead of
@@ -53,10 +54,13 @@ def canonical_json(obj: Any) -> str:
 
 
 def unit_key(kind: str, inputs: dict) -> str:
-    """``<kind>-<sha256>`` of the canonical JSON of ``inputs``, ``kind`` and the code version."""
+    """``<kind>-<sha256>`` of the canonical JSON of ``inputs``, ``kind``, the code version and
+    the numerics in effect (``core/numerics.py``: natively computed units name their
+    processor, so they are never mixed with another processor's or with portable ones)."""
     if not _KIND_RE.match(kind):
         raise InputError(f"cache unit kind '{kind}' must match [a-z0-9_]+")
-    payload = canonical_json({"code": CODE_VERSION, "inputs": inputs, "kind": kind})
+    payload = canonical_json({"code": CODE_VERSION, "inputs": inputs, "kind": kind,
+                              "numerics": numerics_key()})
     return f"{kind}-{hashlib.sha256(payload.encode('ascii')).hexdigest()}"
 
 

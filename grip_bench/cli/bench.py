@@ -65,8 +65,21 @@ def header(result: dict) -> str:
         f"max-min spread){'; quick' if s['quick'] else ''}",
         f"- load average (1, 5, 15 min): before {la0}; after {la1} (other processes share the "
         "cores: a load above the core count slows every figure)",
+        f"- numerics: {numerics_line(result['manifest'].get('numerics'))}",
         f"- wall time: {result['wall_s']:.0f} s; git {result['manifest']['git']['revision']}",
     ])
+
+
+def numerics_line(state: dict | None) -> str:
+    """The kernels the figures ran on (``core/numerics.py``): pinned kernels are slower on
+    processors with wider ones, so a figure means little without them."""
+    if not state:
+        return "not recorded"
+    kernels = (f"numpy AVX-512 targets {', '.join(state['numpy_avx512']) or 'off'}; "
+               f"OpenBLAS {state.get('openblas_core') or '?'}; "
+               f"torch {state.get('torch_capability') or '?'}; "
+               f"MKL_CBWR {state['pins'].get('MKL_CBWR') or 'unset'}")
+    return f"{state['mode']} ({kernels})"
 
 
 def markdown(result: dict) -> str:

@@ -19,6 +19,7 @@ from pathlib import Path
 from ..core.cpu import cpu_info
 from ..core.errors import InputError
 from ..core.io import atomic_write_text, jsonable
+from ..core.numerics import state as numerics_state
 from ..core.version import __version__
 
 MANIFEST_SCHEMA = 1
@@ -91,6 +92,7 @@ def build_manifest(profile: dict, config: dict, seeds: dict, data_hash: str,
         "versions": versions,
         "git": git_info(),
         "platform": platform_info(),
+        "numerics": numerics_state(),
         "cpu_count": os.cpu_count(),
         "python_executable": sys.executable,
         "profile": jsonable(profile),

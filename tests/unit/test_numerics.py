@@ -1,0 +1,104 @@
+"""Portable numerics (``core/numerics.py``): the pins, the modes, the cache key, and that the
+pins reach numpy, OpenBLAS and torch in a fresh process."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from grip_bench.bench.cache import unit_key
+from grip_bench.core import numerics as N
+
+CLEAN = {k: v for k, v in os.environ.items() if k not in N.PINS and k != N.MODE_VAR}
+
+
+@pytest.mark.parametrize("machine, flags, expect", [
+    ("x86_64", set(N.NEEDS) | {"sse2", "avx512f"}, True),
+    ("AMD64", set(N.NEEDS), True),
+    ("x86_64", set(N.NEEDS) - {"movbe"}, False),
+    ("x86_64", {"avx", "sse4_2"}, False),  # no AVX2: the pinned kernels would crash
+    ("aarch64", {"avx2", "fma"}, False),
+])
+def test_can_pin_needs_x86_64_with_avx2_and_fma(machine, flags, expect):
+    assert N.can_pin(machine, flags) is expect
+
+
+def test_pin_sets_every_pin_and_keeps_what_the_user_set(monkeypatch):
+    monkeypatch.setattr(N, "can_pin", lambda: True)
+    env = {"MKL_CBWR": "AVX2"}
+    assert N.pin(env) == "portable"
+    assert env == {**N.PINS, "MKL_CBWR": "AVX2"}
+    assert N.mode(env) == "custom"
+    env["MKL_CBWR"] = N.PINS["MKL_CBWR"]
+    assert N.mode(env) == "portable"
+
+
+def test_native_mode_and_unpinnable_processors_set_nothing(monkeypatch):
+    monkeypatch.setattr(N, "can_pin", lambda: True)
+    env = {N.MODE_VAR: "native"}
+    assert N.pin(env) == "native" and env == {N.MODE_VAR: "native"}
+    monkeypatch.setattr(N, "can_pin", lambda: False)
+    env = {}
+    assert N.pin(env) == "native" and env == {} and N.mode(env) == "native"
+
+
+def test_unknown_mode_is_a_one_line_error_naming_the_variable(capsys):
+    with pytest.raises(SystemExit) as e:
+        N.pin({N.MODE_VAR: "fast"})
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and N.MODE_VAR in err and "'fast'" in err
+
+
+def test_key_names_the_processor_only_outside_portable_mode():
+    portable = N.key(dict(N.PINS))
+    assert portable == {"mode": "portable", "pins": dict(N.PINS)}
+    native = N.key({})
+    assert native["mode"] == "native" and native["cpu"]["model"] is not None
+
+
+def test_cache_keys_differ_between_portable_and_native_units(monkeypatch):
+    for k, v in N.PINS.items():
+        monkeypatch.setenv(k, v)
+    portable = unit_key("dataset", {"seed": 0})
+    assert unit_key("dataset", {"seed": 0}) == portable  # stable
+    monkeypatch.delenv("MKL_CBWR")
+    custom = unit_key("dataset", {"seed": 0})
+    for k in N.PINS:
+        monkeypatch.delenv(k, raising=False)
+    assert len({portable, custom, unit_key("dataset", {"seed": 0})}) == 3
+
+
+_PROBE = ("import json, grip_bench, numpy, torch; torch.ones(2) @ torch.ones(2); "
+          "from grip_bench.core.numerics import state; print(json.dumps(state()))")
+
+
+def _state(env: dict) -> dict:
+    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
+                         text=True, check=True)
+    return json.loads(out.stdout)
+
+
+@pytest.mark.skipif(not N.can_pin(), reason="needs an x86-64-v3 processor (AVX2, FMA)")
+def test_the_pins_reach_numpy_openblas_and_torch_in_a_fresh_process():
+    s = _state(CLEAN)
+    assert s["mode"] == "portable" and s["pins"] == N.PINS
+    assert s["numpy_avx512"] == [] and s["torch_capability"] == "AVX2"
+    assert s["openblas_core"] in (None, "Haswell")  # None: a numpy built without OpenBLAS
+    assert s["loaded_before_pins"] == []
+
+
+def test_native_mode_leaves_the_libraries_alone_in_a_fresh_process():
+    s = _state({**CLEAN, N.MODE_VAR: "native"})
+    assert s["mode"] == "native" and set(s["pins"].values()) == {None}
+    assert "cpu" in s
+
+
+def test_a_library_loaded_before_the_pins_is_named():
+    probe = ("import numpy, grip_bench, json; from grip_bench.core.numerics import state; "
+             "print(json.dumps(state()['loaded_before_pins']))")
+    out = subprocess.run([sys.executable, "-c", probe], env=CLEAN, capture_output=True,
+                         text=True, check=True)
+    assert json.loads(out.stdout) == ["numpy"]
