@@ -7,6 +7,10 @@ import tempfile
 
 import pytest
 
+# Before any test module imports numpy: grip_bench pins numpy's, OpenBLAS's and torch's kernels
+# as it loads (core/numerics.py), so the tests compute what the CLI computes.
+import grip_bench  # noqa: F401, E402
+
 # Derived object geometry (distance grids, convex pieces, the hand template) is cached on
 # disk (grip_bench.geometry.cache). Tests use a fresh folder per session, so they never read
 # or fill the user's ~/.cache/grip-bench and always exercise the cold build once.

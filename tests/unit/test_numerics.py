@@ -14,6 +14,12 @@ from grip_bench.core import numerics as N
 CLEAN = {k: v for k, v in os.environ.items() if k not in N.PINS and k != N.MODE_VAR}
 
 
+@pytest.fixture(autouse=True)
+def _keep_late(monkeypatch):
+    """pin() records which libraries had loaded; the tests below call it again."""
+    monkeypatch.setattr(N, "_late", N._late)
+
+
 @pytest.mark.parametrize("machine, flags, expect", [
     ("x86_64", set(N.NEEDS) | {"sse2", "avx512f"}, True),
     ("AMD64", set(N.NEEDS), True),
@@ -102,3 +108,32 @@ def test_a_library_loaded_before_the_pins_is_named():
     out = subprocess.run([sys.executable, "-c", probe], env=CLEAN, capture_output=True,
                          text=True, check=True)
     assert json.loads(out.stdout) == ["numpy"]
+
+
+def _worker_state() -> dict:
+    import torch
+
+    from grip_bench.core.numerics import state
+
+    torch.ones(2) @ torch.ones(2)
+    return state()
+
+
+@pytest.mark.skipif(not N.can_pin(), reason="needs an x86-64-v3 processor (AVX2, FMA)")
+def test_a_spawned_worker_inherits_the_pins():
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
+        s = pool.submit(_worker_state).result(timeout=120)
+    assert s["mode"] == "portable" and s["numpy_avx512"] == []
+    assert s["torch_capability"] == "AVX2" and s["openblas_core"] in (None, "Haswell")
+
+
+@pytest.mark.skipif(not N.can_pin(), reason="needs an x86-64-v3 processor (AVX2, FMA)")
+def test_the_test_process_is_pinned_too():
+    """tests/conftest.py imports grip_bench before any test module imports numpy."""
+    if os.environ.get(N.MODE_VAR, "portable") != "portable":
+        pytest.skip(f"{N.MODE_VAR} asks for native kernels")
+    s = N.state()
+    assert s["loaded_before_pins"] == [] and s["numpy_avx512"] == []
