@@ -34,6 +34,11 @@ a typical session:
   grip-bench validity --data data/synth --out val          can each metric tell good from bad?
   grip-bench run --profile smoke                            the above for every method and table
   grip-bench <command> --help                               help for one command
+
+environment:
+  GRIP_BENCH_CACHE=DIR|off     derived object geometry (default ~/.cache/grip-bench)
+  GRIP_BENCH_NUMERICS=native   each library's fastest kernels; the default, portable, pins
+                               them so a seed gives the same bits on any x86-64 CPU with AVX2
 """
 
 
