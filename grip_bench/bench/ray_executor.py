@@ -29,6 +29,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..core import numerics
 from ..core.errors import InputError
 from .cache import Cache
 from .execute import RunLog, RunState, execute, release_unit_memory, worker_quota
@@ -67,14 +68,20 @@ def unit_resources(unit: Unit, cfg: RunConfig, max_cpus: int) -> dict:
     return {"num_cpus": cpus, "num_gpus": gpus}
 
 
-def _run_unit(cfg: RunConfig, plan: Plan, unit: Unit, fn: StageFn, *_deps: str) -> str:
+def _run_unit(cfg: RunConfig, plan: Plan, unit: Unit, fn: StageFn, *_deps: str,
+              numerics_mode: str = "portable") -> str:
     """Body of a unit's Ray task (on a worker): the unit through the shared cache.
 
     ``_deps``: the keys the tasks of the units it reads returned (Ray passes them once
-    those tasks finished, so the units are in the cache)."""
+    those tasks finished, so the units are in the cache). ``numerics_mode``: the driver's
+    (``core/numerics.py``); a worker whose kernels differ stops before writing a unit under
+    a key that names other kernels."""
     import torch
 
+    from ..core.numerics import check_worker
     from ..methods.api import load_all
+
+    check_worker(numerics_mode)
 
     torch.set_num_threads(1)  # as the local workers: the same floating-point path
     load_all()  # a fresh worker starts with an empty method registry
@@ -92,8 +99,11 @@ def connect(ray: Any, cfg: RunConfig) -> bool:
     call connected (the run then disconnects at its end)."""
     if ray.is_initialized():
         return False
+    # The pins reach a node's workers as they start, before anything there loads numpy:
+    # a cluster's nodes do not inherit this process's environment (core/numerics.py).
     kwargs: dict = {"include_dashboard": False, "log_to_driver": False,
-                    "configure_logging": False}
+                    "configure_logging": False,
+                    "runtime_env": {"env_vars": numerics.env()}}
     if cfg.address is None:
         kwargs.update(address="local", num_cpus=cfg.workers)
     else:
@@ -143,7 +153,8 @@ class _Submitter:
             if unit.kind in POOL_KINDS:  # the pool the task reserved CPUs for
                 cfg = dataclasses.replace(cfg, workers=res["num_cpus"])
             ref = self._task(unit.kind).options(**res, name=unit.label[:60]).remote(
-                cfg, self.plan_ref, unit, self.fns[unit.kind], *deps)
+                cfg, self.plan_ref, unit, self.fns[unit.kind], *deps,
+                numerics_mode=numerics.mode())
             self.refs[unit.key] = last = ref
             self.labels[ref] = unit.label
             self.st.log(f"  submitted {unit.label} ({res['num_cpus']} CPU"

@@ -83,7 +83,10 @@ def pin(environ=os.environ) -> str:
     """Set the pins not already set (portable mode on a processor that runs them); return
     the mode in effect. Call before numpy and torch load."""
     global _late
-    _late = tuple(lib for lib in LIBRARIES if lib in sys.modules)
+    # A library loaded before now missed the pins, unless they were in the environment when
+    # the process started (a worker inherits them and loads numpy before grip_bench).
+    inherited = all(environ.get(k) == v for k, v in PINS.items())
+    _late = () if inherited else tuple(lib for lib in LIBRARIES if lib in sys.modules)
     try:
         wanted = requested_mode(environ)
     except ValueError as e:  # at import time: one line and exit 2, as every input error
@@ -153,4 +156,35 @@ def state() -> dict:
     out["loaded_before_pins"] = list(_late or ())
     if "torch" in sys.modules:
         out["torch_capability"] = sys.modules["torch"].backends.cpu.get_cpu_capability()
+    out["in_effect"] = in_effect(out)
     return out
+
+
+def in_effect(s: dict) -> bool:
+    """Whether the libraries run what the mode says: outside portable mode always; in it, no
+    numpy AVX-512 target on, OpenBLAS on Haswell (where it can say) and torch at AVX2
+    (where it has loaded)."""
+    if s["mode"] != "portable":
+        return True
+    return (not s["numpy_avx512"] and s.get("openblas_core") in (None, "Haswell")
+            and s.get("torch_capability") in (None, "AVX2"))
+
+
+def env() -> dict[str, str]:
+    """The pins and the mode as set in this process, for workers that do not inherit this
+    process's environment (a Ray cluster's nodes)."""
+    return {k: os.environ[k] for k in (*PINS, MODE_VAR) if k in os.environ}
+
+
+def check_worker(expected_mode: str) -> None:
+    """Raise a one-line error when this worker does not run the kernels the run's driver
+    keys its units by (a worker that loaded numpy before the pins reached it)."""
+    s = state()
+    if s["mode"] != expected_mode or not s["in_effect"]:
+        from .errors import GripBenchError
+
+        raise GripBenchError(
+            f"this worker's numerics ({s['mode']}, numpy AVX-512 targets "
+            f"{s['numpy_avx512'] or 'off'}, OpenBLAS {s['openblas_core']}) are not the "
+            f"driver's ({expected_mode}): start the node's workers with {MODE_VAR} and the "
+            f"pins of docs/reproducibility.md set", where="numerics")

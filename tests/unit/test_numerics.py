@@ -137,3 +137,56 @@ def test_the_test_process_is_pinned_too():
         pytest.skip(f"{N.MODE_VAR} asks for native kernels")
     s = N.state()
     assert s["loaded_before_pins"] == [] and s["numpy_avx512"] == []
+
+
+def test_libraries_loaded_before_pins_count_only_when_the_pins_were_not_inherited(monkeypatch):
+    monkeypatch.setattr(N, "can_pin", lambda: True)
+    N.pin(dict(N.PINS))  # a worker started with the pins: numpy read them as it loaded
+    assert N._late == ()
+    N.pin({})  # numpy and torch are loaded in this process, the pins were not there
+    assert set(N._late) == {"numpy", "torch"}
+
+
+@pytest.mark.parametrize("s, ok", [
+    ({"mode": "native", "numpy_avx512": ["X86_V4"], "openblas_core": "SkylakeX"}, True),
+    ({"mode": "portable", "numpy_avx512": [], "openblas_core": "Haswell",
+      "torch_capability": "AVX2"}, True),
+    ({"mode": "portable", "numpy_avx512": [], "openblas_core": None}, True),
+    ({"mode": "portable", "numpy_avx512": ["X86_V4"], "openblas_core": "Haswell"}, False),
+    ({"mode": "portable", "numpy_avx512": [], "openblas_core": "SkylakeX"}, False),
+    ({"mode": "portable", "numpy_avx512": [], "openblas_core": "Haswell",
+      "torch_capability": "AVX512"}, False),
+])
+def test_in_effect_reads_what_the_libraries_run(s, ok):
+    assert N.in_effect(s) is ok
+
+
+def test_a_worker_with_other_kernels_stops_with_one_line(monkeypatch):
+    from grip_bench.core.errors import GripBenchError
+
+    good = {"mode": "portable", "numpy_avx512": [], "openblas_core": "Haswell",
+            "in_effect": True}
+    monkeypatch.setattr(N, "state", lambda: good)
+    N.check_worker("portable")
+    with pytest.raises(GripBenchError, match=N.MODE_VAR) as e:
+        N.check_worker("native")
+    assert "\n" not in str(e.value)
+    monkeypatch.setattr(N, "state", lambda: {**good, "numpy_avx512": ["X86_V4"],
+                                             "in_effect": False})
+    with pytest.raises(GripBenchError, match="AVX-512"):
+        N.check_worker("portable")
+
+
+def test_a_ray_cluster_gets_the_pins_as_its_workers_start(monkeypatch):
+    """A cluster's nodes do not inherit the driver's environment: ray.init carries them."""
+    from types import SimpleNamespace
+
+    from grip_bench.bench import ray_executor as R
+
+    seen = {}
+    fake = SimpleNamespace(is_initialized=lambda: False, init=lambda **kw: seen.update(kw))
+    for k, v in N.PINS.items():
+        monkeypatch.setenv(k, v)
+    assert R.connect(fake, SimpleNamespace(address="ray://head:10001", workers=None))
+    assert seen["runtime_env"] == {"env_vars": {**N.PINS, **N.env()}}
+    assert set(N.PINS) <= set(seen["runtime_env"]["env_vars"])
