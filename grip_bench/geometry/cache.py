@@ -7,8 +7,10 @@ stored as plain numpy arrays (``np.savez``, read back with ``allow_pickle=False`
     $GRIP_BENCH_CACHE, else $XDG_CACHE_HOME/grip-bench, else ~/.cache/grip-bench
 
 in ``<kind>/<key[:2]>/<key>.npz``. The key is a SHA-256 of the cache version, the kind,
-the mesh bytes (float64 vertices, int64 faces, with their shapes) and the build
-parameters, so a changed mesh or parameter never reads a stale entry; bump
+the mesh bytes (float64 vertices, int64 faces, with their shapes), the build
+parameters and the numerics in effect (``core/numerics.py``: entries built with another
+processor's native kernels are not read as portable ones), so a changed mesh or parameter
+never reads a stale entry; bump
 ``CACHE_VERSION`` when a builder's output changes for the same inputs.
 
 ``GRIP_BENCH_CACHE=off`` (or ``0``, ``none``, ``false``, ``no``) disables the cache. Writes
@@ -33,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.io import atomic_file
+from ..core.numerics import key as numerics_key
 
 __all__ = ["CACHE_VERSION", "ENV_VAR", "cache_root", "mesh_key", "bytes_key", "load_arrays",
            "save_arrays", "cached_arrays", "package_version"]
@@ -87,6 +90,7 @@ def mesh_key(
     h.update(v.tobytes())
     h.update(f.tobytes())
     h.update(json.dumps(params or {}, sort_keys=True).encode())
+    h.update(json.dumps(numerics_key(), sort_keys=True).encode())
     return h.hexdigest()
 
 
@@ -99,6 +103,7 @@ def bytes_key(kind: str, parts: tuple[bytes, ...], params: Mapping | None = None
         h.update(f"{len(part)}|".encode())
         h.update(part)
     h.update(json.dumps(params or {}, sort_keys=True).encode())
+    h.update(json.dumps(numerics_key(), sort_keys=True).encode())
     return h.hexdigest()
 
 

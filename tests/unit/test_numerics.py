@@ -190,3 +190,19 @@ def test_a_ray_cluster_gets_the_pins_as_its_workers_start(monkeypatch):
     assert R.connect(fake, SimpleNamespace(address="ray://head:10001", workers=None))
     assert seen["runtime_env"] == {"env_vars": {**N.PINS, **N.env()}}
     assert set(N.PINS) <= set(seen["runtime_env"]["env_vars"])
+
+
+def test_geometry_cache_entries_are_kept_apart_by_kernels(monkeypatch):
+    """Derived geometry built with one processor's native kernels is not read as portable."""
+    import numpy as np
+
+    from grip_bench.geometry.cache import bytes_key, mesh_key
+
+    v, f = np.eye(3), np.array([[0, 1, 2]])
+    for k, val in N.PINS.items():
+        monkeypatch.setenv(k, val)
+    portable = mesh_key("sdf_grid", v, f), bytes_key("repaired-mesh", (b"x",))
+    for k in N.PINS:
+        monkeypatch.delenv(k)
+    native = mesh_key("sdf_grid", v, f), bytes_key("repaired-mesh", (b"x",))
+    assert portable[0] != native[0] and portable[1] != native[1]
