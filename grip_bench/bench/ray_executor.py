@@ -78,10 +78,9 @@ def _run_unit(cfg: RunConfig, plan: Plan, unit: Unit, fn: StageFn, *_deps: str,
     a key that names other kernels."""
     import torch
 
-    from ..core.numerics import check_worker
     from ..methods.api import load_all
 
-    check_worker(numerics_mode)
+    numerics.check_worker(numerics_mode)
 
     torch.set_num_threads(1)  # as the local workers: the same floating-point path
     load_all()  # a fresh worker starts with an empty method registry

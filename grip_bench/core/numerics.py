@@ -19,10 +19,11 @@ AVX2 and FMA runs the same way (``PINS``):
 
 A variable the user has already set is left as it is. ``GRIP_BENCH_NUMERICS=native`` turns
 the pins off (every library's fastest kernels; results then repeat on one processor family
-only). Processors without AVX2 and FMA, and non-x86 machines, run natively: pinning a
-kernel they lack would crash. :func:`state` records what is in effect (every manifest) and
-:func:`key` enters every cache key, so units computed natively on one processor and units
-computed portably are never mixed (docs/architecture.md, "Cache keys").
+only). Processors below x86-64-v3 (AVX2, FMA, BMI2, MOVBE...) and non-x86 machines run
+natively: pinning a kernel they lack would crash. :func:`state` records what is in effect
+(every manifest) and :func:`key` enters every cache key, so units computed natively on one
+processor and units computed portably are never mixed (docs/architecture.md, "Cache
+keys").
 
 The pins must be set before numpy and torch load: ``grip_bench/__init__.py`` calls
 :func:`pin` first, spawned workers inherit the environment, and :func:`state` names a
@@ -35,6 +36,8 @@ import os
 import platform
 import sys
 from pathlib import Path
+
+from .cpu import cpu_info, parse_cpuinfo
 
 MODE_VAR = "GRIP_BENCH_NUMERICS"  # "portable" (default) or "native"
 MODES = ("portable", "native")
@@ -60,16 +63,13 @@ def requested_mode(environ=os.environ) -> str:
 
 
 def _cpu_flags() -> set[str]:
-    """The x86 flags of the first processor in ``/proc/cpuinfo``; empty where it is absent."""
+    """The x86 flags of ``/proc/cpuinfo`` (``core.cpu.parse_cpuinfo``); empty where it is
+    absent."""
     try:
         text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
     except OSError:
         return set()
-    for line in text.splitlines():
-        key, _, value = line.partition(":")
-        if key.strip().lower() == "flags":
-            return set(value.split())
-    return set()
+    return parse_cpuinfo(text)[1]
 
 
 def can_pin(machine: str | None = None, flags: set[str] | None = None) -> bool:
@@ -113,8 +113,6 @@ def key(environ=os.environ) -> dict:
     mode the processor too (its native kernels are part of what a unit computed)."""
     out = {"mode": mode(environ), "pins": {k: environ.get(k) for k in PINS}}
     if out["mode"] != "portable":
-        from .cpu import cpu_info
-
         info = cpu_info()
         out["cpu"] = {"model": info.model, "capability": info.capability,
                       "flags": sorted(info.flags)}
@@ -132,7 +130,10 @@ def _openblas_core() -> str | None:
     paths = sorted({ln.split()[-1] for ln in maps.splitlines() if "openblas" in ln.lower()
                     and ln.split()[-1].startswith("/")})
     for path in paths:
-        lib = ctypes.CDLL(path)
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
         for name in ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename",
                      "openblas_get_corename64_", "openblas_get_corename"):
             fn = getattr(lib, name, None)
