@@ -26,6 +26,9 @@ import json
 import sys
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 WIDE_MM = tuple(float(a) for a in np.arange(80.0, 160.01, 10.0))

@@ -30,6 +30,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 DISTAL = (3, 6, 9, 12, 15)  # MANO order: the index, middle, pinky, ring and thumb tips' bones

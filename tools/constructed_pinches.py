@@ -28,6 +28,9 @@ import sys
 import time
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 SHAPES = ("sphere", "cube", "cylinder")

@@ -37,6 +37,9 @@ import json
 import sys
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 THUMB_TIP, INDEX_TIP = 16, 17  # HAND_KEYPOINTS: the 16 MANO joints, then the tips

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import argparse
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import matplotlib
 
 matplotlib.use("Agg")

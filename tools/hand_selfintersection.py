@@ -13,6 +13,9 @@ from __future__ import annotations
 
 import argparse
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import igl
 import numpy as np
 import torch

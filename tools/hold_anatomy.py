@@ -21,6 +21,9 @@ import json
 import sys
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 AFTER_S = 0.05  # s into the hold at which the contacts are counted again

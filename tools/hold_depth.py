@@ -25,6 +25,9 @@ import json
 import sys
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 

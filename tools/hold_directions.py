@@ -24,6 +24,9 @@ import json
 import sys
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 PALM_JOINTS = [0, 1, 4, 7, 10, 13]  # the wrist and the five knuckles (MANO joint order)

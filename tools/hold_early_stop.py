@@ -34,6 +34,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 REST_AFTER = 0.2  # s into the hold before the rule may stop a run (the load's transient)

@@ -22,6 +22,8 @@ import json
 import sys
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
 
 def results_at(scene, up, scales: tuple[float, ...]) -> list:
     """The hold test's ``HoldResult`` on ``scene`` with the object's mass and inertia scaled

@@ -35,6 +35,9 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 WEDGED_FORCE = 50.0  # times the object's weight: far past what the capped servos squeeze

@@ -33,6 +33,9 @@ import json
 import sys
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 from grip_bench.bodies.pinch import (  # noqa: E402,F401  (the tool's public names)

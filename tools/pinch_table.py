@@ -17,6 +17,9 @@ import argparse
 import sys
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 APERTURES_MM = tuple(float(a) for a in np.arange(10.0, 75.01, 2.5))

@@ -27,6 +27,9 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 
 POSITION_SCALE = 0.05  # m; a wrist 5 cm away counts like a 1-unit rotation column change

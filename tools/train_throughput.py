@@ -23,6 +23,9 @@ import tempfile
 import time
 from pathlib import Path
 
+import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
+
+# isort: split
 import numpy as np
 import torch
 

@@ -206,3 +206,37 @@ def test_geometry_cache_entries_are_kept_apart_by_kernels(monkeypatch):
         monkeypatch.delenv(k)
     native = mesh_key("sdf_grid", v, f), bytes_key("repaired-mesh", (b"x",))
     assert portable[0] != native[0] and portable[1] != native[1]
+
+
+_NUMERIC = {"numpy", "scipy", "torch", "trimesh", "mujoco", "igl", "manifold3d", "matplotlib",
+            "pandas", "numba", "sklearn", "coacd"}
+
+
+def _imports(path):
+    """(line, top-level module) of every import in the file, in source order."""
+    import ast
+
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name.split(".")[0]) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            out.append((node.lineno, node.module.split(".")[0]))
+    return sorted(out)
+
+
+def test_every_probe_in_tools_imports_grip_bench_before_a_numeric_library():
+    """A probe run as ``python tools/x.py`` computes what the run computes only if the pins are
+    set before numpy (or torch, or a library built on them) loads: docs/reproducibility.md."""
+    from pathlib import Path
+
+    tools = sorted((Path(__file__).resolve().parents[2] / "tools").glob("*.py"))
+    assert tools
+    late = []
+    for path in tools:
+        seq = _imports(path)
+        first_numeric = next((ln for ln, m in seq if m in _NUMERIC), None)
+        first_ours = next((ln for ln, m in seq if m == "grip_bench"), None)
+        if first_numeric is not None and (first_ours is None or first_ours > first_numeric):
+            late.append(f"{path.name}:{first_numeric}")
+    assert not late, f"numeric library imported before grip_bench: {late}"
