@@ -58,6 +58,8 @@ import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibil
 # isort: split
 import numpy as np
 
+from grip_bench.geometry.rotations import rotation_6d_to_matrix
+
 OBJECTS = ("binoculars", "binoculars_2", "binoculars_3", "mug", "mug_2", "cubemedium_2",
            "cubemedium_3")
 PADS = ("thumb", "index", "middle", "ring", "palm")
@@ -113,17 +115,6 @@ def pad_vertices(hand) -> np.ndarray:
     aim = 0.4 * j[0] + 0.6 * j[4]
     out.append(int(ids[np.argmin(np.linalg.norm((v[ids] - aim)[:, [0, 2]], axis=1))]))
     return np.asarray(out)
-
-
-def rot6d(x):
-    """Rotations (B, 3, 3) from 6D (B, 6): the first two columns, Gram-Schmidt."""
-    import torch
-
-    a, b = x[:, :3], x[:, 3:]
-    e1 = a / a.norm(dim=1, keepdim=True)
-    b = b - (e1 * b).sum(1, keepdim=True) * e1
-    e2 = b / b.norm(dim=1, keepdim=True)
-    return torch.stack([e1, e2, torch.cross(e1, e2, dim=1)], 2)
 
 
 def closure(x, u, mask, com, radius: float):
@@ -226,7 +217,7 @@ class Problem:
     # -- energy --------------------------------------------------------------------------
     def pose(self, x6, t, local):
         """Hand vertices (B, V, 3) in the object frame."""
-        R = rot6d(x6)
+        R = rotation_6d_to_matrix(x6)
         v, _ = self.hand._lbs(self.hand.from_local(local), R, t)
         return v
 
@@ -331,7 +322,7 @@ def optimise(problem: Problem, settings: Settings) -> dict:
             local.copy_(torch.maximum(torch.minimum(local, problem.upper), problem.lower))
     with torch.no_grad():
         total, terms = problem.energy(x6, base + 0.01 * dt, local, mask, prior, w1)
-        R = rot6d(x6).numpy()
+        R = rotation_6d_to_matrix(x6).numpy()
     return dict(R=R, t=(base + 0.01 * dt).detach().numpy(), local=local.detach().numpy(),
                 mask=mask.numpy(), first=first, final={**{k: v.numpy() for k, v in
                                                           terms.items()},
