@@ -19,7 +19,6 @@ import argparse
 import json
 import sys
 import time
-import tomllib
 from pathlib import Path
 
 import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibility.md)
@@ -33,9 +32,9 @@ def train_anet(data: Path, seed: int, epochs: int, profile: str, cache: Path) ->
     """ANet of ``profile``'s settings, ``epochs`` at most; returns the curve and the net."""
     from grip_bench.data.grab_io import dataset_hash
     from grip_bench.grip import train as T
+    from grip_bench.profiles import load_profile
 
-    path = Path(grip_bench.__file__).parent / "profiles" / f"{profile}.toml"
-    hp = dict(tomllib.loads(path.read_text())["grip"])
+    hp = dict(load_profile(profile)["grip"])
     hp["seed"] = seed
     variant = T.Variant()
     start = time.time()
@@ -56,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("data", type=Path, help="a GRAB-layout folder with splits.json")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--epochs", type=int, default=60, help="the epoch budget (default 60)")
-    ap.add_argument("--profile", default="default", help="a built-in profile's name")
+    ap.add_argument("--profile", default="default", help="a built-in profile's name or a TOML path")
     ap.add_argument("--cache", type=Path, default=Path(".grip-cache"),
                     help="feature cache folder (default ./.grip-cache)")
     ap.add_argument("--out", type=Path, default=None, help="write ANet's weights here")
