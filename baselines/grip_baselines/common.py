@@ -138,6 +138,11 @@ class TrainedMethod:
         self.name = name
         self.device = torch.device("cpu")
 
+    @property
+    def profile_sections(self) -> tuple[str, ...]:
+        """The profile sections training reads, its own: a checkpoint keys only these."""
+        return (self.section,)
+
     def fit(self, data_dir: Path, cfg: Any, seed: int, progress: bool,
             device: torch.device) -> tuple[dict[str, torch.nn.Module], dict]:
         raise NotImplementedError

@@ -420,6 +420,18 @@ def _train_identity(spec: MethodSpec) -> dict:
             "code": stage_code("checkpoint", spec.factory.__module__)}
 
 
+def _train_profile(spec: MethodSpec, profile: dict) -> dict:
+    """The profile sections a method's training reads: its ``profile_sections`` (a baseline's
+    own section, GRIP's ``[grip]``), or every section but ``[run]`` for a method that
+    declares none. A checkpoint's key holds only these, so editing ``[grip]`` retrains GRIP
+    and leaves GrabNet's checkpoint cached (before s56 every checkpoint keyed the whole
+    profile). Training is handed the same sections (``stages/train.py``)."""
+    names = getattr(spec.build(), "profile_sections", None)
+    if names is None:
+        return {k: v for k, v in profile.items() if k not in ("run", "name")}
+    return {k: profile[k] for k in names if k in profile}
+
+
 Checkpoints = dict[tuple[str, int], Unit | None]  # (method, seed) -> its checkpoint unit
 
 
@@ -431,7 +443,6 @@ def _train_units(cfg: RunConfig, data: Unit, units: list[Unit]) -> Checkpoints:
     out: Checkpoints = {}
     by_key: dict[str, Unit] = {}
     leaders: dict[tuple, str] = {}  # (family, seed) -> key of its first checkpoint unit
-    train_cfg = {k: v for k, v in cfg.profile.items() if k not in ("run", "name")}
     for seed in cfg.seeds:
         for name in cfg.methods:
             spec = METHODS.get(name)
@@ -440,7 +451,7 @@ def _train_units(cfg: RunConfig, data: Unit, units: list[Unit]) -> Checkpoints:
                     out[(name, seed)] = None
                 continue
             ident = _train_identity(spec)
-            inputs = {**ident, "data": data.key, "profile": train_cfg,
+            inputs = {**ident, "data": data.key, "profile": _train_profile(spec, cfg.profile),
                       "seed": seed, "device": cfg.device}
             nproc = int(cfg.settings.get("train_nproc", 1))
             if nproc != 1:  # DDP equals one process only up to float rounding: its own unit

@@ -31,6 +31,8 @@ if TYPE_CHECKING:
 class GripMethod:
     """One GRIP variant: training switches (a :class:`Variant`) plus ``use_rnet``."""
 
+    profile_sections = ("grip",)  # what training reads; a checkpoint keys only these
+
     def __init__(self, name: str = "grip", *, ambient: str = "distance", proximity: bool = True,
                  consistency: str = "latent", future_frames: int = 10, use_rnet: bool = True,
                  geometry: bool = True):

@@ -67,7 +67,13 @@ class TrainContext:
 
 
 class Method(Protocol):
-    """What every registered method object provides."""
+    """What every registered method object provides.
+
+    Optional: ``train_key()`` (methods with equal keys train one shared checkpoint) and
+    ``profile_sections`` (the profile sections ``train`` reads; ``grip-bench run`` keys
+    the checkpoint by these alone and hands ``train`` only these, docs/architecture.md,
+    "Cache keys"; absent: every section but ``[run]``).
+    """
 
     name: str
 

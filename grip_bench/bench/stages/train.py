@@ -66,7 +66,10 @@ def train_method(st: RunState, unit: Unit, tmp: Path) -> dict:
     work = st.cache.root / "work" / unit.key
     work.mkdir(parents=True, exist_ok=True)
     features = st.cache.root / "features" / unit.params["inputs"]["code"][:16]
-    ctx = TrainContext(profile=st.cfg.profile, seed=st.cfg.seed, device=st.cfg.device,
+    # the method trains on the profile sections its unit's key holds, no more (plan.py,
+    # ``_train_profile``): a section it read without declaring would be missing, not stale
+    profile = {**unit.params["inputs"]["profile"], "name": st.cfg.profile.get("name")}
+    ctx = TrainContext(profile=profile, seed=st.cfg.seed, device=st.cfg.device,
                        progress=st.cfg.progress, feature_cache=features)
     nproc = int((st.cfg.profile.get("run") or {}).get("train_nproc", 1))
     path = train_checkpoint(unit.params["method"], st.data_dir(unit.deps[0]),
