@@ -9,7 +9,8 @@ gravity, mu = 1) on every ``--every``-th tested frame of a split
 share, how many verdicts differ from the committed ones and the simulation's milliseconds a
 test. Variants (``VARIANTS``): MuJoCo's two remedies for soft-friction creep (``impratio``
 100, 10 noslip iterations), cheaper collision and solver settings (the speed levers:
-``ccd_iterations`` 10, ``ccd_tolerance`` 1e-4, the solver's ``tolerance`` 1e-6), the
+``ccd_iterations`` 10, ``ccd_tolerance`` 1e-4, the solver's ``tolerance`` 1e-6; libccd
+instead of MuJoCo's native collision, no midphase), the
 design's two ends of the tightening (1 and 2 mm; the scene is rebuilt, its time not
 counted) and other time steps, the scene rebuilt under each, its time not counted: 1/480 s
 (is the committed step converged?), 1/250 s (how many verdicts a step barely changed
@@ -35,6 +36,10 @@ VARIANTS: dict[str, dict] = {
     "impratio 100": {"opt": {"impratio": 100.0}},
     "noslip 10": {"opt": {"noslip_iterations": 10}},
     "ccd_iterations 10": {"opt": {"ccd_iterations": 10}},
+    # MuJoCo's collision engines: libccd instead of its native GJK/EPA (the default), and no
+    # bounding-volume midphase (mjtDisableBit values; a test checks them against mujoco's)
+    "libccd": {"opt": {"disableflags": 1 << 17}},  # mjDSBL_NATIVECCD
+    "no midphase": {"opt": {"disableflags": 1 << 14}},  # mjDSBL_MIDPHASE
     "ccd_tolerance 1e-4": {"opt": {"ccd_tolerance": 1e-4}},
     "solver tolerance 1e-6": {"opt": {"tolerance": 1e-6}},
     "tighten 1 mm": {"tighten": 0.001},

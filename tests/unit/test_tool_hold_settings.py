@@ -76,3 +76,15 @@ def test_a_constructed_pinch_holds_under_every_variant():
         held, seconds = run_variant(Pair(), 0, scene, VARIANTS[name])
         assert held and seconds > 0
     assert run_variant(Pair(), 0, scene, None)[0]
+
+
+def test_the_collision_engine_variants_set_mujocos_own_disable_bits():
+    import mujoco
+
+    bits = mujoco.mjtDisableBit
+    assert VARIANTS["libccd"]["opt"]["disableflags"] == int(bits.mjDSBL_NATIVECCD)
+    assert VARIANTS["no midphase"]["opt"]["disableflags"] == int(bits.mjDSBL_MIDPHASE)
+    model = mujoco.MjModel.from_xml_string("<mujoco><worldbody/></mujoco>")
+    with options(model, VARIANTS["libccd"]["opt"]):
+        assert model.opt.disableflags & int(bits.mjDSBL_NATIVECCD)
+    assert model.opt.disableflags == 0
