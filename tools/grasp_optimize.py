@@ -41,8 +41,13 @@ the thumb and one more finger within ``HOLD_TOUCH``; the valid ones run the arti
 hold test (``metrics.hold``: the object in its own frame, gravity along -y, mu = 1, the
 suite's density). Nothing here changes the data.
 
+With ``--mass-factors`` and ``--grips`` every valid restart is also held with the object
+that many times as heavy and the finger servos that many times as strong (is a grasp that
+falls short of force, or of geometry? docs/physics_hold.md, "Measured in s56").
+
     python tools/grasp_optimize.py DATA [--objects mug ...] [--side right] [--restarts 64]
-                                   [--steps 300] [--seed 0] [--json]
+                                   [--steps 300] [--seed 0] [--mass-factors 1 0.1]
+                                   [--grips 1 3] [--json]
 """
 
 from __future__ import annotations
@@ -334,8 +339,21 @@ def touching(parts: list[str]) -> bool:
     return "thumb" in parts and any(f in parts for f in ("index", "middle", "ring", "pinky"))
 
 
-def judge(problem: Problem, res: dict, hold_test: bool = True) -> list[dict]:
-    """Per restart: depth, lowest point above the table, touching parts, valid, held."""
+DEFAULT_VARIANT = (1.0, 1.0)  # (mass factor, grip factor): the test as the run runs it
+
+
+def variant_name(mass: float, grip: float) -> str:
+    return f"{mass:g}x mass, {grip:g}x grip"
+
+
+def judge(problem: Problem, res: dict, hold_test: bool = True,
+          variants: tuple[tuple[float, float], ...] = (DEFAULT_VARIANT,)) -> list[dict]:
+    """Per restart: depth, lowest point above the table, touching parts, valid, held.
+
+    ``variants``: (mass factor, grip factor) pairs each valid restart is held at (the
+    object's density and ``metrics.hold.servo_strength`` scaled): ``held_at`` maps
+    :func:`variant_name` to the verdict; ``held`` and the other fields are the first
+    variant's."""
     from grip_bench.bodies.layouts import HAND_PARTS
     from grip_bench.core import constants as C
     from grip_bench.data.synth import grasp as G
@@ -358,24 +376,31 @@ def judge(problem: Problem, res: dict, hold_test: bool = True) -> list[dict]:
                    energy_end=float(res["final"]["total"][c]),
                    closure_end=float(res["final"]["fc"][c]), held=None)
         if valid and hold_test:
-            row.update(_hold(problem, v[c], j[c], sd))
+            row.update(_hold(problem, v[c], j[c], sd, variants))
         rows.append(row)
     return rows
 
 
-def _hold(problem: Problem, v: np.ndarray, j: np.ndarray, sd: np.ndarray) -> dict:
-    """The articulated hold test of one posed full hand in the object's frame."""
+def _hold(problem: Problem, v: np.ndarray, j: np.ndarray, sd: np.ndarray,
+          variants: tuple[tuple[float, float], ...] = (DEFAULT_VARIANT,)) -> dict:
+    """The articulated hold test of one posed full hand in the object's frame, at each
+    (mass factor, grip factor) of ``variants`` (a scene per mass)."""
     from grip_bench.core import constants as C
     from grip_bench.metrics.hold import hand_scene, hold
     from tools.probe_cli import posed_hand
 
-    full = problem.full
+    full, up = problem.full, (0.0, 1.0, 0.0)
     hand = posed_hand(full, np.asarray(full.faces), np.asarray(full.bone_ids), v, j, sd)
-    r = hold(hand_scene([hand], problem.mesh, None, (0.0, 1.0, 0.0), C.DEFAULT_DENSITY),
-             (0.0, 1.0, 0.0))[0]
+    scenes, results = {}, {}
+    for mass, grip in variants:
+        if mass not in scenes:
+            scenes[mass] = hand_scene([hand], problem.mesh, None, up, C.DEFAULT_DENSITY * mass)
+        results[mass, grip] = hold(scenes[mass], up, grip=grip)[0]
+    r = results[variants[0]]
     return dict(held=bool(r.held), displacement_mm=1e3 * r.displacement,
                 rotation_deg=float(r.rotation), settle_mm=1e3 * r.settle,
-                wedge=float(r.wedge), ruled_out=bool(r.ruled_out), diverged=bool(r.diverged))
+                wedge=float(r.wedge), ruled_out=bool(r.ruled_out), diverged=bool(r.diverged),
+                held_at={variant_name(*k): bool(x.held) for k, x in results.items()})
 
 
 def load(data: Path, name: str):
@@ -398,8 +423,10 @@ def load(data: Path, name: str):
 
 
 def probe_object(mesh, df, table_y: float, side: str, settings: Settings,
-                 hold_test: bool = True) -> dict:
-    """Optimise and judge one object: counts, time and one row per restart."""
+                 hold_test: bool = True,
+                 variants: tuple[tuple[float, float], ...] = (DEFAULT_VARIANT,)) -> dict:
+    """Optimise and judge one object: counts (``held_by_variant``: valid restarts held at
+    each of ``variants``, :func:`judge`), time and one row per restart."""
     from grip_bench.core import constants as C
     from grip_bench.data.synth import grasp as G
 
@@ -407,12 +434,15 @@ def probe_object(mesh, df, table_y: float, side: str, settings: Settings,
     problem = Problem(mesh, df, side, table_y, C.DEFAULT_DENSITY)
     res = optimise(problem, settings)
     t_opt = time.perf_counter() - t0
-    rows = judge(problem, res, hold_test)
+    rows = judge(problem, res, hold_test, variants)
     held = [r for r in rows if r["held"]]
+    by_variant = {variant_name(*k): sum(bool(r.get("held_at", {}).get(variant_name(*k)))
+                                        for r in rows) for k in variants}
     fails = dict(deep=sum(r["depth_mm"] > 1e3 * G.MAX_PENETRATION for r in rows),
                  table=sum(r["low_mm"] < 1e3 * G.TABLE_CLEARANCE for r in rows),
                  no_touch=sum(not touching(r["touching"]) for r in rows))
     return dict(restarts=len(rows), valid=sum(r["valid"] for r in rows), valid_held=len(held),
+                held_by_variant=by_variant,
                 held_contacts=[r["touching"] for r in held], fails=fails,
                 weight_n=problem.weight, optimise_s=t_opt,
                 seconds=time.perf_counter() - t0, rows=rows)
@@ -429,6 +459,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument("--restarts", type=int, default=Settings.restarts)
         ap.add_argument("--steps", type=int, default=Settings.steps)
         ap.add_argument("--seed", type=int, default=Settings.seed)
+        ap.add_argument("--mass-factors", type=float, nargs="+", default=[1.0],
+                        help="hold each valid grasp with the object this many times as heavy")
+        ap.add_argument("--grips", type=float, nargs="+", default=[1.0],
+                        help="... and with the finger servos this many times as strong")
 
     args = probe_cli.parse(__doc__, argv, extend)
     torch.set_num_threads(1)
@@ -436,7 +470,9 @@ def main(argv: list[str] | None = None) -> int:
     out = []
     for name in args.objects:
         mesh, df, gs = load(args.data, name)
-        res = {"object": name, **probe_object(mesh, df, gs.table_y, args.side, settings)}
+        variants = tuple((m, g) for m in args.mass_factors for g in args.grips)
+        res = {"object": name, **probe_object(mesh, df, gs.table_y, args.side, settings,
+                                              variants=variants)}
         out.append(res)
         if not args.json:
             kinds = sorted({"+".join(c) for c in res["held_contacts"]})
@@ -446,6 +482,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"too deep, {res['fails']['table']} below the table, "
                   f"{res['fails']['no_touch']} without thumb + finger; "
                   f"{res['seconds']:.0f} s", flush=True)
+            if len(variants) > 1:
+                print("  valid and held at " + "; ".join(
+                    f"{k}: {n}" for k, n in res["held_by_variant"].items()), flush=True)
     if args.json:
         print(json.dumps(out, indent=1))
     return 0

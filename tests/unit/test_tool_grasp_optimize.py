@@ -85,3 +85,16 @@ def test_a_seed_repeats_its_grasps(box):
         np.testing.assert_array_equal(again[k], res[k])
     other = GO.optimise(box, GO.Settings(restarts=3, steps=20, seed=6))
     assert not np.allclose(other["t"], res["t"])
+
+
+def test_valid_grasps_are_held_at_each_mass_and_grip_variant(box):
+    res = GO.optimise(box, GO.Settings(restarts=4, steps=300, seed=1))
+    variants = (GO.DEFAULT_VARIANT, (0.01, 3.0))
+    rows = GO.judge(box, res, True, variants)
+    valid = [r for r in rows if r["valid"]]
+    assert valid
+    for r in valid:
+        assert set(r["held_at"]) == {"1x mass, 1x grip", "0.01x mass, 3x grip"}
+        assert r["held"] == r["held_at"]["1x mass, 1x grip"]  # the first variant's verdict
+    for r in rows:
+        assert r["valid"] or r["held"] is None
