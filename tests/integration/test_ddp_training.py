@@ -270,7 +270,7 @@ def test_profiles_default_to_one_process_and_the_runner_passes_train_nproc(tmp_p
     seen = {}
 
     def fake_train(name, data_dir, out, ctx, nproc=1):
-        seen.update(name=name, nproc=nproc)
+        seen.update(name=name, nproc=nproc, sections=sorted(ctx.profile))
         out.write_bytes(b"ckpt")
         return out
 
@@ -278,11 +278,13 @@ def test_profiles_default_to_one_process_and_the_runner_passes_train_nproc(tmp_p
     st = SimpleNamespace(cache=SimpleNamespace(root=tmp_path / "cache"),
                          data_dir=lambda k: tmp_path,
                          cfg=SimpleNamespace(profile=profile, seed=0, device="cpu", progress=False))
-    unit = SimpleNamespace(key="k", deps=["d"], params={"method": "grip",
-                                                         "inputs": {"code": "0" * 16}})
+    # a checkpoint unit's inputs hold the profile sections its method trains on (plan.py)
+    inputs = {"code": "0" * 16, "profile": {"grip": profile["grip"]}}
+    unit = SimpleNamespace(key="k", deps=["d"], params={"method": "grip", "inputs": inputs})
     (tmp_path / "unit").mkdir()
     assert stage.train_method(st, unit, tmp_path / "unit") == {"file": "model.ckpt"}
-    assert seen == {"name": "grip", "nproc": 2}
+    # [run] is read from the run's profile; training gets the keyed sections and the name
+    assert seen == {"name": "grip", "nproc": 2, "sections": ["grip", "name"]}
 
 
 def test_train_nproc_gets_its_own_checkpoint_units(tmp_path):
