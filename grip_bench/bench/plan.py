@@ -405,14 +405,15 @@ def _method_inputs(spec: MethodSpec, kind: str) -> dict:
             "version": spec.version, "code": stage_code(kind, spec.factory.__module__)}
 
 
-def _train_identity(spec: MethodSpec) -> dict:
-    """What makes a checkpoint: the method, or its ``train_key()`` when it has one.
+def _train_identity(spec: MethodSpec, method: object) -> dict:
+    """What makes a checkpoint: the method, or its ``train_key()`` when it has one
+    (``method``: ``spec.build()``).
 
     GRIP variants that differ only at inference (``grip`` / ``grip-no-rnet``) report the
     same train key, so they share one checkpoint unit instead of training twice.
     """
     ident = {"method": spec.name, "options": spec.options}
-    train_key = getattr(spec.build(), "train_key", None)
+    train_key = getattr(method, "train_key", None)
     if callable(train_key):
         factory = f"{spec.factory.__module__}.{spec.factory.__qualname__}"
         ident = {"factory": factory, "train_key": train_key()}
@@ -420,13 +421,13 @@ def _train_identity(spec: MethodSpec) -> dict:
             "code": stage_code("checkpoint", spec.factory.__module__)}
 
 
-def _train_profile(spec: MethodSpec, profile: dict) -> dict:
-    """The profile sections a method's training reads: its ``profile_sections`` (a baseline's
-    own section, GRIP's ``[grip]``), or every section but ``[run]`` for a method that
-    declares none. A checkpoint's key holds only these, so editing ``[grip]`` retrains GRIP
+def _train_profile(method: object, profile: dict) -> dict:
+    """The profile sections a method object's training reads: its ``profile_sections`` (a
+    baseline's own section, GRIP's ``[grip]``), or every section but ``[run]`` for a method
+    that declares none. A checkpoint's key holds only these, so editing ``[grip]`` retrains GRIP
     and leaves GrabNet's checkpoint cached (before s56 every checkpoint keyed the whole
     profile). Training is handed the same sections (``stages/train.py``)."""
-    names = getattr(spec.build(), "profile_sections", None)
+    names = getattr(method, "profile_sections", None)
     if names is None:
         return {k: v for k, v in profile.items() if k not in ("run", "name")}
     return {k: profile[k] for k in names if k in profile}
@@ -450,8 +451,9 @@ def _train_units(cfg: RunConfig, data: Unit, units: list[Unit]) -> Checkpoints:
                 if seed == cfg.seed:
                     out[(name, seed)] = None
                 continue
-            ident = _train_identity(spec)
-            inputs = {**ident, "data": data.key, "profile": _train_profile(spec, cfg.profile),
+            method = spec.build()
+            ident = _train_identity(spec, method)
+            inputs = {**ident, "data": data.key, "profile": _train_profile(method, cfg.profile),
                       "seed": seed, "device": cfg.device}
             nproc = int(cfg.settings.get("train_nproc", 1))
             if nproc != 1:  # DDP equals one process only up to float rounding: its own unit

@@ -53,6 +53,6 @@ def test_the_key_holds_the_declared_sections_and_a_plugin_gets_every_one_but_run
         def __init__(self, name: str) -> None:
             self.name = name
 
-    spec = MethodSpec(name="plugin", description="", factory=Plugin)
-    got = _train_profile(spec, {**cfg.profile, "name": "smoke"})
+    got = _train_profile(MethodSpec(name="plugin", description="", factory=Plugin).build(),
+                         {**cfg.profile, "name": "smoke"})
     assert set(got) == set(cfg.profile) - {"run", "name"} and "grip" in got
