@@ -344,7 +344,8 @@ def _physics_subsampling(options: EvalOptions) -> str:
     sim = options.max_physics_frames if options.max_sim_frames is None else min(
         options.max_sim_frames, options.max_physics_frames)
     return (f"physics tests on at most {options.max_physics_frames} held frames per sequence "
-            f"and hand, drawn with seed {options.physics_seed}; MuJoCo on at most {sim} of them")
+            f"and hand, drawn with seed {options.physics_seed}; the support test and the "
+            f"articulated test's variants on at most {sim} of them")
 
 
 def _summary(

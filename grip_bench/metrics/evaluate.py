@@ -24,8 +24,9 @@ object's frame (ARCTIC's MDev on contacts): GT against itself is 0, and a method
 touches is measured on the same vertices, so it cannot score 0 by not touching.
 
 Physics runs on at most ``EvalOptions.max_physics_frames`` held frames per sequence and hand,
-drawn with a seed (``EvalOptions.physics_seed``, the sequence and the hand; the MuJoCo tests on
-``max_sim_frames`` of them where that is smaller: :func:`sim_frames`); in
+drawn with a seed (``EvalOptions.physics_seed``, the sequence and the hand; the support test
+and the articulated test's friction, grip and direction variants on ``max_sim_frames`` of
+them where that is smaller: :func:`sim_frames`; the articulated test itself on all); in
 frames where both GT hands hold, both predicted hands are in the scene and the test is
 shared by the two hands.
 """
@@ -85,8 +86,9 @@ class EvalOptions:
     ``iv`` / ``physics``: switch the intersection volume / physics metrics (MuJoCo and the
     quasi-static hold check: ``PHYSICS_METRICS``) off wholesale;
     ``max_physics_frames``: physics-tested held frames per sequence and hand (the quasi-static
-    check's; the MuJoCo tests' too unless ``max_sim_frames``, a smaller budget for the
-    simulations, draws fewer among them: :func:`sim_frames`); ``max_iv_frames``: exact
+    check's and the articulated hold test's; the support test's and the articulated test's
+    friction, grip and direction variants' too unless ``max_sim_frames``, a smaller budget
+    for those simulations, draws fewer among them: :func:`sim_frames`); ``max_iv_frames``: exact
     intersection volumes per sequence and hand (evenly spaced grasp frames, 0 = every grasp
     frame; a sample of a smooth 30 fps motion); ``model_path``: MANO /
     SMPL-X models for ``body_model == "smplx"`` data; ``up``: the world's up axis for gravity
@@ -513,11 +515,13 @@ def physics_frames(pair: SequencePair, side: str) -> np.ndarray:
 
 
 def sim_frames(pair: SequencePair, side: str) -> np.ndarray:
-    """The frames the MuJoCo tests run on: :func:`physics_frames`, or, where
-    ``max_sim_frames`` is smaller, that many of them drawn like them (a second seeded draw,
-    so the simulated frames are quasi-static-tested frames too). The metric-validity report
-    gives the simulations the smaller budget: they cost ~0.3 s a test, the quasi-static
-    check milliseconds (docs/contract.md, "Metric validity")."""
+    """The frames the support test and the articulated hold test's friction, grip and
+    direction variants run on: :func:`physics_frames`, or, where ``max_sim_frames`` is
+    smaller, that many of them drawn like them (a second seeded draw, so they are frames of
+    the quasi-static check and the articulated test too). The metric-validity report gives
+    these unjudged simulations the smaller budget (each costs ~0.3 s with its scene), while
+    the articulated test itself, whose claims it judges, runs on every physics frame like
+    the quasi-static check (docs/contract.md, "Metric validity")."""
     idx = physics_frames(pair, side)
     k = pair.options.max_sim_frames
     return idx if k is None else _draw(pair, side, idx, k, "|sim")
@@ -780,7 +784,8 @@ def m_sim_disp(pair: SequencePair, side: str) -> Measured:
 def hold_scene(pair: SequencePair, t: int) -> Scene | None:
     """The articulated hold test's compiled scene (``metrics.hold.hand_scene``) of frame
     ``t`` with every predicted hand the GT holds with there, cached per frame (its gravity,
-    friction variants and directions reuse it; at most two hands' :func:`sim_frames` a sequence);
+    friction variants and directions reuse it; at most two hands' :func:`physics_frames` a
+    sequence);
     None where it cannot be built: a non-finite hand, a hand model whose template lacks the
     track's vertices or a scene MuJoCo will not compile (the latter two counted as failure
     notes)."""
@@ -837,7 +842,10 @@ def _hold_runs(pair: SequencePair, t: int, mu: float, axes: tuple[str | None, ..
 
 def _hold_sim(pair: SequencePair, side: str, mu: float = C.SIM_FRICTION, grip: float = 1.0
               ) -> tuple[np.ndarray, list[HoldResult | None]]:
-    idx = sim_frames(pair, side)
+    """The articulated test on its frames: the test itself (mu = ``SIM_FRICTION``, the
+    committed grip) on every physics frame, a friction or grip variant on :func:`sim_frames`."""
+    own = mu == C.SIM_FRICTION and grip == 1.0
+    idx = physics_frames(pair, side) if own else sim_frames(pair, side)
     return idx, [hold_frame(pair, int(t), mu, None, grip) for t in idx]
 
 

@@ -44,14 +44,16 @@ if TYPE_CHECKING:
     from .evaluate import EvalOptions
 
 # The run's validity unit (bench.stages.validity) and ``grip-bench validity --physics``
-# evaluate the physics metrics on VALIDITY_PHYSICS_FRAMES held frames per sequence and hand,
-# the MuJoCo tests on VALIDITY_SIM_FRAMES of them (``EvalOptions.max_sim_frames``). A MuJoCo
-# test costs ~0.3 s and every level of every degradation is one evaluation (8 x 3 + 1 per
-# sequence), so the simulations keep 2 frames; the quasi-static check costs milliseconds and
-# takes the run's own 8 (s53: with 2, one frame of one sequence weighed 6 points on the
-# default report's 8 sequences, six times the 1-point tolerance of "%", and its two broken
-# claims came from one sequence; docs/contract.md, "Metric validity"). Physics responses are
-# tabulated and plotted; only the two hold tests' own columns are judged (JUDGED_PHYSICS).
+# evaluate the physics metrics on VALIDITY_PHYSICS_FRAMES held frames per sequence and hand:
+# the quasi-static check and the articulated hold test, the two whose claims are judged
+# (JUDGED_PHYSICS), on all of them; the support test and the articulated test's friction,
+# grip and direction variants, tabulated and plotted but not judged, on VALIDITY_SIM_FRAMES
+# of them (``EvalOptions.max_sim_frames``): each costs ~0.3 s with its scene and every level
+# of every degradation is one evaluation (8 x 3 + 1 per sequence). Why 8: a judged share in
+# % has a 1-point tolerance, so one frame of one sequence must weigh less than a point (s53:
+# with 2, one frame of one sequence weighed 6 points on the default report's 8 sequences;
+# s57: the articulated test, judged since s51 on 2 frames, gets the same 8;
+# docs/contract.md, "Metric validity").
 VALIDITY_PHYSICS_FRAMES = C.EVAL_MAX_PHYSICS_FRAMES
 VALIDITY_SIM_FRAMES = 2
 VALIDITY_IV_FRAMES = 4  # exact intersection volumes per sequence and hand (evenly spaced)

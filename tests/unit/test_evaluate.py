@@ -204,14 +204,19 @@ def test_sim_frames_are_a_seeded_draw_among_the_physics_frames(data):
     assert any(not np.array_equal(sim, frames(max_physics_frames=6, max_sim_frames=2,
                                               physics_seed=s)[1]) for s in range(1, 6))
     np.testing.assert_array_equal(frames(max_physics_frames=6, max_sim_frames=50)[1], qs)
-    # the MuJoCo metrics run on the sim frames, the quasi-static check on every physics frame
+    # the quasi-static check and the articulated test itself (the validity report judges
+    # both) run on every physics frame; the support test and the articulated test's
+    # friction, grip and direction variants on the sim frames
     pair = E.SequencePair(gt, gt, lib, E.EvalOptions(max_physics_frames=3, max_sim_frames=1),
                           I.FailureCounter())
     qs = E.physics_frames(pair, "right")
-    np.testing.assert_array_equal(E.m_hold_qs(pair, "right").frames, qs)
-    for m in (E.m_hold_sim, E.m_hold_sim_axes, E.m_sim_stable):
+    assert len(qs) == 3 and len(E.sim_frames(pair, "right")) == 1
+    for m in (E.m_hold_qs, E.m_hold_sim, E.m_hold_sim_disp, E.m_hold_sim_ruled):
+        np.testing.assert_array_equal(m(pair, "right").frames, qs)
+    variants = (E.m_hold_sim_axes, E.m_sim_stable, E.METRICS.get("hold_sim_mu05").compute,
+                E.METRICS.get("hold_sim_weak").compute)
+    for m in variants:
         np.testing.assert_array_equal(m(pair, "right").frames, E.sim_frames(pair, "right"))
-    assert len(E.sim_frames(pair, "right")) == 1
 
 
 def test_metric_selection_and_errors(data):
