@@ -31,8 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "then weighs under the 1-point tolerance; the default run uses 16)")
     p.add_argument("--seed", type=int, default=0, help="noise and bootstrap seed (default 0)")
     p.add_argument("--physics", action="store_true",
-                   help="include the physics metrics (the quasi-static check on 8 held "
-                        "frames per sequence and hand, the MuJoCo tests on 2 of them)")
+                   help="include the physics metrics (the quasi-static check and the "
+                        "articulated hold test, both judged, on 8 held frames per sequence "
+                        "and hand; the support test and the articulated test's friction, "
+                        "grip and direction variants, tabulated only, on 2 of them)")
     p.add_argument("--max-iv-frames", type=int, default=4, metavar="K",
                    help="exact intersection volumes per sequence and hand (default 4)")
     p.add_argument("--workers", type=int, default=1, metavar="N",

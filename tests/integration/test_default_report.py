@@ -71,15 +71,17 @@ def test_ground_truth_ranks_best_on_the_articulated_hold_displacement():
     assert (val[val.level > 0].value >= clean.iloc[0] - tie).all()
 
 
-def test_the_validity_report_judges_the_articulated_test_and_it_passes():
+def test_the_validity_report_judges_the_articulated_test():
     """Since s51 the validity report holds ``hold_sim`` and ``hold_sim_disp`` to the
-    quasi-static check's claims. On the committed report the responses carry those claims,
-    none of them breaks, and ground truth is the articulated test's best row under every
-    degradation; the broken claim is the one known (docs/contract.md: since s53 the report
-    degrades 16 sequences, the quasi-static check on 8 frames a hand, and `hold_qs`'s
-    claims under pushing and jitter and `pen_depth`'s under closing hold; closing by 0.4 rad
-    takes a banana's index and middle fingers through its thin end, off the strict
-    contact band)."""
+    quasi-static check's claims; since s57 on the same 8 frames a hand (one frame of one
+    sequence under the 1-point tolerance). On the committed report the responses carry
+    those claims and the broken ones are the known ones (docs/contract.md, "Metric
+    validity"; docs/physics_hold.md, "Landed in s57"): the strict contact ratio under
+    closing by 0.4 rad (a banana's index and middle fingers through its thin end), and
+    ``hold_sim`` under 1 mm of wrist jitter, which holds more frames than the ground truth
+    (the medium cubes, whose ground-truth grasps fall, hold 12.5-50 % of their frames
+    jittered, in three jitter draws), so ground truth is not its best row there. Every
+    displacement claim holds, and no other degraded level scores above the ground truth."""
     import pandas as pd
 
     from grip_bench.metrics import validity as V
@@ -92,7 +94,8 @@ def test_the_validity_report_judges_the_articulated_test_and_it_passes():
     assert (val["expected"] == [V.claim(d, m) for d, m in
                                 zip(val.degradation, val.metric, strict=True)]).all()
     broken = V.check_validity(val)
-    assert not [b for b in broken if b.startswith("hold_sim")], broken
-    assert sorted(b.split(":")[0] for b in broken) == ["contact_ratio_strict under close"]
+    assert sorted(b.split(":")[0] for b in broken) == [
+        "contact_ratio_strict under close", "hold_sim", "hold_sim under jitter"], broken
     held = val[val.metric == "hold_sim"]
-    assert (held[held.level > 0].value <= held[held.level == 0].value.iloc[0]).all()
+    above = held[(held.level > 0) & (held.value > held[held.level == 0].value.iloc[0])]
+    assert list(zip(above.degradation, above.level, strict=True)) == [("jitter", 1.0)]
