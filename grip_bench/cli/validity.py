@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 DESCRIPTION = """\
@@ -44,9 +44,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import json
     import sys
 
-    from ..core.io import atomic_write_text
+    from ..core.io import atomic_write_text, jsonable
     from ..metrics.validity import check_validity, metric_validity, validity_options
     from ..report.validity import write_validity
 
@@ -55,9 +56,14 @@ def run(args: argparse.Namespace) -> int:
                          progress=sys.stderr.isatty(), workers=args.workers)
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out / "validity.csv", df.to_csv(index=False))
+    # its inputs, as the run's validity unit records them (the table states the budgets)
+    inputs = {"data": str(args.data), "split": args.split, "sequences": args.sequences,
+              "seed": args.seed, "options": asdict(options)}
+    atomic_write_text(args.out / "validity.json",
+                      json.dumps(jsonable({"inputs": inputs}), sort_keys=True, indent=1) + "\n")
     written = write_validity(args.out)
     broken = check_validity(df)
-    print(f"wrote {len(written) + 1} files under {args.out}; "
+    print(f"wrote {len(written) + 2} files under {args.out}; "
           f"{len(broken)} broken claim(s)")
     for line in broken:
         print(f"  {line}")

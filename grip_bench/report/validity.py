@@ -1,12 +1,15 @@
 """The metric-validity report: a table and a figure of each metric's response to controlled
 degradations of ground truth (computed by ``grip_bench.metrics.validity``).
 
-Reads ``OUT/validity.csv`` (columns of ``metric_validity``) and writes
-``OUT/tables/metric_validity.{md,csv}`` and ``OUT/figures/metric_validity.png``.
+Reads ``OUT/validity.csv`` (columns of ``metric_validity``) and, when present,
+``OUT/validity.json`` (its inputs: the evaluation options, whose frame budgets the table's
+footnote states), and writes ``OUT/tables/metric_validity.{md,csv}`` and
+``OUT/figures/metric_validity.png``.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -31,8 +34,26 @@ def _claims(df: pd.DataFrame) -> dict[tuple[str, str], bool]:
     return out
 
 
-def validity_markdown(df: pd.DataFrame) -> str:
-    """One section per degradation: each metric's value per level, the claim and its verdict."""
+def sampling_note(options: dict | None) -> list[str]:
+    """The footnote line on what the physics metrics and exact IV were measured on, from the
+    evaluation options the report was made with (``EvalOptions`` as a dict); none unknown."""
+    if not options:
+        return []
+    if not options.get("physics", True):
+        return ["- Physics metrics not measured (`grip-bench validity --physics` adds them)."]
+    k = int(options["max_physics_frames"])
+    sim = k if options.get("max_sim_frames") is None else min(k, int(options["max_sim_frames"]))
+    iv, seed = int(options.get("max_iv_frames", 0)), options.get("physics_seed", 0)
+    return [f"- Frames: the quasi-static check and the articulated hold test on at most {k} "
+            f"held frames per sequence and hand (drawn with seed {seed}); "
+            f"the support test and the articulated test's friction, grip and direction "
+            f"variants on at most {sim} of them; exact IV on "
+            + (f"{iv} evenly spaced grasp frames." if iv else "every grasp frame.")]
+
+
+def validity_markdown(df: pd.DataFrame, options: dict | None = None) -> str:
+    """One section per degradation: each metric's value per level, the claim and its verdict;
+    ``options`` (the evaluation's, as in ``validity.json``) adds the sampling footnote."""
     from ..metrics.validity import DEGRADATIONS, check_validity
 
     claims = _claims(df)
@@ -59,6 +80,7 @@ def validity_markdown(df: pd.DataFrame) -> str:
               "- Claims: up / down = monotone (ties within the tolerance) with a clear change; "
               "flat = every level within the tolerance of level 0 (grip_bench.metrics.validity"
               ".TOLERANCE). Unclaimed pairs are measured, not judged.",
+              *sampling_note(options),
               f"- Broken claims: {len(broken)}" + ("." if not broken else ": "
                                                    + "; ".join(broken) + ".")]
     return "\n".join(lines) + "\n"
@@ -82,9 +104,12 @@ def write_validity(out: str | os.PathLike) -> list[Path]:
     if not src.is_file():
         return []
     df = pd.read_csv(src, keep_default_na=True).fillna({"expected": ""})
+    meta = out / "validity.json"
+    options = (json.loads(meta.read_text()).get("inputs", {}).get("options")
+               if meta.is_file() else None)
     tables = out / "tables"
     tables.mkdir(parents=True, exist_ok=True)
-    written = [atomic_write_text(tables / "metric_validity.md", validity_markdown(df)),
+    written = [atomic_write_text(tables / "metric_validity.md", validity_markdown(df, options)),
                atomic_write_text(tables / "metric_validity.csv", df.to_csv(index=False))]
     written.append(validity_figure(df, out / "figures" / "metric_validity.png"))
     return written

@@ -333,3 +333,27 @@ def test_hold_check_claims_hold_on_smoke_data(data):
     assert np.all(top == 100.0)
     last = df.groupby("degradation")["value"].last()
     assert (last[sorted(judged)] < 100.0).all()
+
+
+def test_the_table_states_its_frame_budgets_from_the_options():
+    """The footnote reads the evaluation options the report was made with (``validity.json``):
+    the judged hold tests' frames, the unjudged simulations' and exact IV's; nothing when the
+    options are unknown; a line saying so when physics was off."""
+    from dataclasses import asdict
+
+    from grip_bench.report.validity import sampling_note, validity_markdown
+
+    opts = asdict(V.validity_options(EvalOptions()))
+    (line,) = sampling_note(opts)
+    assert (f"on at most {V.VALIDITY_PHYSICS_FRAMES} held frames per sequence and hand" in line
+            and f"variants on at most {V.VALIDITY_SIM_FRAMES} of them" in line
+            and f"exact IV on {V.VALIDITY_IV_FRAMES} evenly spaced" in line)
+    assert "on at most 3 of them" in sampling_note({**opts, "max_sim_frames": None,
+                                                    "max_physics_frames": 3})[0]
+    assert "every grasp frame" in sampling_note({**opts, "max_iv_frames": 0})[0]
+    assert sampling_note(None) == []
+    assert "not measured" in sampling_note(asdict(V.validity_options(physics=False)))[0]
+    df = pd.DataFrame([{"degradation": "wrist", "level": 0.0, "metric": "mpjpe", "unit": "mm",
+                        "value": 0.0, "ci_low": 0.0, "ci_high": 0.0, "n_sequences": 2,
+                        "expected": "up"}])
+    assert line in validity_markdown(df, opts) and line not in validity_markdown(df)
