@@ -83,7 +83,8 @@ def trained():
     net = ANetConfig(hidden=128, width=64, latent=32, dropout=0.0, relative_future=True).build()
     torch.nn.init.zeros_(net.decoder.head.weight)  # as grip.train builds it
     torch.nn.init.zeros_(net.decoder.head.bias)
-    fit(_anet_stage(net, data, hp), hp, StageState(), 0, 40, lambda s: None, False)
+    fit(_anet_stage(net, data, hp, torch.device("cpu")), hp, StageState(), 0, 40,
+        lambda s: None, False)
     return net.eval()
 
 
