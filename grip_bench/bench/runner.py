@@ -216,7 +216,8 @@ def assemble_validity(st: RunState) -> None:
     """``OUT/validity.csv`` (and ``validity.json``: the unit's key and inputs) from the
     validity unit; without one (``[run] validity_sequences = 0``) the files of an earlier
     run, and the table and figure drawn from them, are removed."""
-    from ..core.io import atomic_write_bytes, atomic_write_text, jsonable
+    from ..core.io import atomic_write_bytes
+    from ..report.validity import write_validity_record
 
     out = st.cfg.out
     units = st.plan.of("validity")
@@ -227,9 +228,7 @@ def assemble_validity(st: RunState) -> None:
         return
     unit = units[0]
     atomic_write_bytes(out / "validity.csv", (st.unit_dir(unit.key) / VALIDITY_FILE).read_bytes())
-    record = {"unit": unit.key, "inputs": unit.params["inputs"]}
-    atomic_write_text(out / "validity.json",
-                      json.dumps(jsonable(record), sort_keys=True, indent=1) + "\n")
+    write_validity_record(out, {"unit": unit.key, "inputs": unit.params["inputs"]})
 
 
 def assemble_sensitivity(st: RunState) -> None:

@@ -44,12 +44,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
     import sys
 
-    from ..core.io import atomic_write_text, jsonable
+    from ..core.io import atomic_write_text
     from ..metrics.validity import check_validity, metric_validity, validity_options
-    from ..report.validity import write_validity
+    from ..report.validity import write_validity, write_validity_record
 
     options = replace(validity_options(physics=args.physics), max_iv_frames=args.max_iv_frames)
     df = metric_validity(str(args.data), args.split, args.sequences, args.seed, options,
@@ -59,8 +58,7 @@ def run(args: argparse.Namespace) -> int:
     # its inputs, as the run's validity unit records them (the table states the budgets)
     inputs = {"data": str(args.data), "split": args.split, "sequences": args.sequences,
               "seed": args.seed, "options": asdict(options)}
-    atomic_write_text(args.out / "validity.json",
-                      json.dumps(jsonable({"inputs": inputs}), sort_keys=True, indent=1) + "\n")
+    write_validity_record(args.out, {"inputs": inputs})
     written = write_validity(args.out)
     broken = check_validity(df)
     print(f"wrote {len(written) + 2} files under {args.out}; "

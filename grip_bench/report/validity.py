@@ -97,6 +97,15 @@ def validity_figure(df: pd.DataFrame, out_png: str | os.PathLike) -> Path:
     return metric_validity_grid(df, out_png, verdicts, labels)
 
 
+def write_validity_record(out: str | os.PathLike, record: dict) -> Path:
+    """``OUT/validity.json``: which inputs made ``validity.csv`` (the run's validity unit
+    adds its key); :func:`write_validity` reads its options for the table's footnote."""
+    from ..core.io import jsonable
+
+    return atomic_write_text(Path(out) / "validity.json",
+                             json.dumps(jsonable(record), sort_keys=True, indent=1) + "\n")
+
+
 def write_validity(out: str | os.PathLike) -> list[Path]:
     """The table and figure of ``OUT/validity.csv``; nothing when it does not exist."""
     out = Path(out)
