@@ -2,8 +2,8 @@
 degradations of ground truth (computed by ``grip_bench.metrics.validity``).
 
 Reads ``OUT/validity.csv`` (columns of ``metric_validity``) and, when present,
-``OUT/validity.json`` (its inputs: the evaluation options, whose frame budgets the table's
-footnote states), and writes ``OUT/tables/metric_validity.{md,csv}`` and
+``OUT/validity.json`` (its inputs, and the footnote on their frame budgets written with
+them), and writes ``OUT/tables/metric_validity.{md,csv}`` and
 ``OUT/figures/metric_validity.png``.
 """
 
@@ -36,7 +36,10 @@ def _claims(df: pd.DataFrame) -> dict[tuple[str, str], bool]:
 
 def sampling_note(options: dict | None) -> list[str]:
     """The footnote line on what the physics metrics and exact IV were measured on, from the
-    evaluation options the report was made with (``EvalOptions`` as a dict); none unknown."""
+    evaluation options (``EvalOptions`` as a dict), as this code applies them; none unknown.
+    :func:`write_validity_record` stores it in ``validity.json`` when the report is made, so
+    a re-rendered table states what the code that ran did (s57 changed what
+    ``max_sim_frames`` covers without changing the options)."""
     if not options:
         return []
     if not options.get("physics", True):
@@ -51,9 +54,14 @@ def sampling_note(options: dict | None) -> list[str]:
             + (f"{iv} evenly spaced grasp frames." if iv else "every grasp frame.")]
 
 
-def validity_markdown(df: pd.DataFrame, options: dict | None = None) -> str:
+UNRECORDED = ("- Frames: not recorded (`validity.json` from before s58; `grip-bench run` or "
+              "`grip-bench validity` writes them).")
+
+
+def validity_markdown(df: pd.DataFrame, frames: list[str] | None = None) -> str:
     """One section per degradation: each metric's value per level, the claim and its verdict;
-    ``options`` (the evaluation's, as in ``validity.json``) adds the sampling footnote."""
+    ``frames``: the footnote lines on the frame budgets (:func:`sampling_note`, as
+    ``validity.json`` stores them)."""
     from ..metrics.validity import DEGRADATIONS, check_validity
 
     claims = _claims(df)
@@ -80,7 +88,7 @@ def validity_markdown(df: pd.DataFrame, options: dict | None = None) -> str:
               "- Claims: up / down = monotone (ties within the tolerance) with a clear change; "
               "flat = every level within the tolerance of level 0 (grip_bench.metrics.validity"
               ".TOLERANCE). Unclaimed pairs are measured, not judged.",
-              *sampling_note(options),
+              *(frames or []),
               f"- Broken claims: {len(broken)}" + ("." if not broken else ": "
                                                    + "; ".join(broken) + ".")]
     return "\n".join(lines) + "\n"
@@ -99,9 +107,12 @@ def validity_figure(df: pd.DataFrame, out_png: str | os.PathLike) -> Path:
 
 def write_validity_record(out: str | os.PathLike, record: dict) -> Path:
     """``OUT/validity.json``: which inputs made ``validity.csv`` (the run's validity unit
-    adds its key); :func:`write_validity` reads its options for the table's footnote."""
+    adds its key) and the footnote on their frame budgets (``frames``: :func:`sampling_note`
+    of the inputs' options, written by the code that made the report), which
+    :func:`write_validity` prints under the table."""
     from ..core.io import jsonable
 
+    record = {**record, "frames": sampling_note(record.get("inputs", {}).get("options"))}
     return atomic_write_text(Path(out) / "validity.json",
                              json.dumps(jsonable(record), sort_keys=True, indent=1) + "\n")
 
@@ -114,11 +125,10 @@ def write_validity(out: str | os.PathLike) -> list[Path]:
         return []
     df = pd.read_csv(src, keep_default_na=True).fillna({"expected": ""})
     meta = out / "validity.json"
-    options = (json.loads(meta.read_text()).get("inputs", {}).get("options")
-               if meta.is_file() else None)
+    frames = json.loads(meta.read_text()).get("frames", [UNRECORDED]) if meta.is_file() else []
     tables = out / "tables"
     tables.mkdir(parents=True, exist_ok=True)
-    written = [atomic_write_text(tables / "metric_validity.md", validity_markdown(df, options)),
+    written = [atomic_write_text(tables / "metric_validity.md", validity_markdown(df, frames)),
                atomic_write_text(tables / "metric_validity.csv", df.to_csv(index=False))]
     written.append(validity_figure(df, out / "figures" / "metric_validity.png"))
     return written

@@ -356,4 +356,37 @@ def test_the_table_states_its_frame_budgets_from_the_options():
     df = pd.DataFrame([{"degradation": "wrist", "level": 0.0, "metric": "mpjpe", "unit": "mm",
                         "value": 0.0, "ci_low": 0.0, "ci_high": 0.0, "n_sequences": 2,
                         "expected": "up"}])
-    assert line in validity_markdown(df, opts) and line not in validity_markdown(df)
+    assert line in validity_markdown(df, [line]) and line not in validity_markdown(df)
+
+
+def test_the_record_keeps_the_footnote_its_code_wrote(tmp_path):
+    """``validity.json`` stores the frame-budget footnote when the report is made, and a
+    re-rendered table prints that stored line, not one recomputed by later code (s57 changed
+    what ``max_sim_frames`` covers, the options unchanged); a record without one says so."""
+    import json
+    from dataclasses import asdict
+
+    from grip_bench.report.validity import (
+        UNRECORDED,
+        sampling_note,
+        write_validity,
+        write_validity_record,
+    )
+
+    opts = asdict(V.validity_options(EvalOptions()))
+    rows = pd.DataFrame([{"degradation": "wrist", "level": lv, "metric": "mpjpe", "unit": "mm",
+                          "value": 10.0 * lv, "ci_low": 0.0, "ci_high": 0.0, "n_sequences": 2,
+                          "expected": "up"} for lv in (0.0, 0.01)])
+    rows.to_csv(tmp_path / "validity.csv", index=False)
+    write_validity_record(tmp_path, {"inputs": {"options": opts}})
+    record = json.loads((tmp_path / "validity.json").read_text())
+    assert record["frames"] == sampling_note(opts)  # beside the inputs it was written from
+    record["frames"] = ["- Frames: as an older code wrote them."]
+    (tmp_path / "validity.json").write_text(json.dumps(record))
+    write_validity(tmp_path)
+    md = (tmp_path / "tables" / "metric_validity.md").read_text()
+    assert "as an older code wrote them" in md and sampling_note(opts)[0] not in md
+    del record["frames"]
+    (tmp_path / "validity.json").write_text(json.dumps(record))
+    write_validity(tmp_path)
+    assert UNRECORDED in (tmp_path / "tables" / "metric_validity.md").read_text()
