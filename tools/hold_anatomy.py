@@ -10,7 +10,12 @@ grouped by the grasp types SynthGRAB's ``manifest.json`` records for their seque
 ("r:power", "l:precision+r:precision"; "?" without one, e.g. real GRAB). Per group: frames,
 held, and the median contact counts of the held and of the dropped frames. A squeeze whose
 pushes do not cancel loses its contacts during the settle, before the load comes
-(docs/physics_hold.md, "Measured in s45"). A diagnostic: the test is unchanged.
+(docs/physics_hold.md, "Measured in s45"). Each frame also records the force a quasi-static
+plan needs to hold it (:func:`plan_weights`: the quasi-static check's contacts through
+``geometry.wrench.plan_forces``, the least largest normal force in object weights), and
+the summary compares it between the sequences the test holds (at least half their frames)
+and those it fails (docs/physics_hold.md, "Measured in s58"). A diagnostic: the test is
+unchanged.
 
     python tools/hold_anatomy.py DATA [--split test] [--model-path DIR] [--json]
 """
@@ -41,13 +46,15 @@ def grasp_labels(data_dir: Path) -> dict[str, str]:
 
 
 def contacts_through(scene, up) -> dict:
-    """One frame: held (the test's verdict), the settle (m), contacts at the start and after
-    the settle, the normal force (N) after the settle, and contacts ``AFTER_S`` into the
-    hold (0 once the object has left the hand)."""
+    """One frame: held (the test's verdict, its three rules included: the wedge rule's
+    inward force is read on the settled state, as ``metrics.hold.hold`` reads it), the
+    settle (m), contacts at the start and after the settle, the normal force (N) after the
+    settle, and contacts ``AFTER_S`` into the hold (0 once the object has left the hand)."""
     import mujoco
 
     from grip_bench.core import constants as C
-    from tools.hold_early_stop import record, verdict
+    from grip_bench.metrics import hold as H
+    from tools.hold_early_stop import record
 
     seen = []
 
@@ -56,7 +63,7 @@ def contacts_through(scene, up) -> dict:
         for i in range(data.ncon):
             mujoco.mj_contactForce(model, data, i, f)
             force += f[0]
-        seen.append((int(data.ncon), force))
+        seen.append((int(data.ncon), force, H.inward_force(model, data, scene.patches, up)))
 
     settle, (checks,) = record(scene, up, settled=count)
     if not checks:  # diverged
@@ -64,8 +71,50 @@ def contacts_through(scene, up) -> dict:
                 "settled": 0, "force": 0.0, "after": 0}
     end = checks[-1]
     at = next((c for c in checks if c.step * C.SIM_DT >= AFTER_S - 1e-12), end)
-    return {"held": verdict(scene, settle, end.disp, end.rot), "settle": settle,
-            "start": seen[0][0], "settled": seen[1][0], "force": seen[1][1], "after": at.ncon}
+    held = (not H.broken_rules(scene.depth, settle, seen[1][2])
+            and end.disp < C.HOLD_DISP and end.rot < C.HOLD_ROT)
+    return {"held": bool(held), "settle": settle, "start": seen[0][0], "settled": seen[1][0],
+            "force": seen[1][1], "after": at.ncon}
+
+
+def plan_weights(pair, t: int) -> float:
+    """The largest normal force (object weights) of the least-force quasi-static plan that
+    holds frame ``t`` under the world's gravity at mu = ``SIM_FRICTION`` (the ``hold_qs``
+    check's contacts); inf when no plan holds it, NaN for a non-finite hand."""
+    from grip_bench.core import constants as C
+    from grip_bench.geometry.wrench import plan_forces
+    from grip_bench.metrics.evaluate import _qs_contacts
+    from grip_bench.metrics.hold import gravity_along
+
+    got = _qs_contacts(pair, t)
+    if got is None:
+        return float("nan")
+    depth, closest, normal, com, mass, rot = got
+    if depth > C.HOLD_MAX_DEPTH or not len(closest):
+        return float("inf")
+    load = mass * gravity_along(None, np.asarray(pair.options.up, np.float64)) @ rot.T
+    forces = plan_forces(closest, -normal, com, load, C.SIM_FRICTION)
+    if forces is None:
+        return float("inf")
+    return float(np.max(np.einsum("kc,kc->k", forces, -normal))) / (mass * C.GRAVITY)
+
+
+def by_sequence(rows: list[dict]) -> dict:
+    """Sequences the test holds (at least half their tested frames) and those it fails, and
+    the median over each group of a sequence's median :func:`plan_weights` (frames without
+    a reading, NaN, left out; a sequence with none is counted but has no median)."""
+    seqs: dict[str, list[dict]] = {}
+    for r in rows:
+        seqs.setdefault(r["sequence"], []).append(r)
+    out = {}
+    for name, keep in (("held", True), ("failed", False)):
+        mine = [rs for rs in seqs.values() if (2 * sum(r["held"] for r in rs) >= len(rs)) == keep]
+        plans = [float(np.median(p)) for p in ([r["plan_weights"] for r in rs
+                                                if not np.isnan(r["plan_weights"])]
+                                               for rs in mine) if p]
+        out[name] = {"sequences": len(mine),
+                     "plan_weights": float(np.median(plans)) if plans else None}
+    return out
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -98,8 +147,10 @@ def probe(data_dir: Path, split: str = "test", model_path: str | None = None) ->
             if scene is None:
                 continue
             rows.append({"sequence": name, "frame": int(t), "grasps": labels.get(name, "?"),
-                         **contacts_through(scene, pair.options.up)})
-    return {"split": split, "rows": rows, "by_grasp": summarise(rows)}
+                         **contacts_through(scene, pair.options.up),
+                         "plan_weights": plan_weights(pair, int(t))})
+    return {"split": split, "rows": rows, "by_grasp": summarise(rows),
+            "by_sequence": by_sequence(rows)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -119,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
             return "-" if c is None else f"{c['start']:.0f} / {c['settled']:.0f} / {c['after']:.0f}"
         print(f"{label} | {e['frames']} | {e['held']} | {fmt(e['held_contacts'])} | "
               f"{fmt(e['dropped_contacts'])}")
+    for name, e in res["by_sequence"].items():
+        print(f"{name} sequences: {e['sequences']}, median plan force {e['plan_weights']} "
+              "object weights")
     return 0
 
 
