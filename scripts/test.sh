@@ -31,8 +31,8 @@ WORKERS=${GRIP_BENCH_TEST_WORKERS:-$(( CORES < 4 ? CORES : 4 ))}
 XDIST=()
 if [ "$WORKERS" != 0 ]; then XDIST=(-n "$WORKERS" --dist loadfile); fi
 python -m pytest -q -p no:cacheprovider ${XDIST[@]+"${XDIST[@]}"} "$@"
-# CI (CI=true) runs the slow tests too, after the default suite (about 21 min on 2 cores in
-# s58); elsewhere GRIP_BENCH_SLOW=1 asks for them (or `tox -e slow`). Before s58 nothing
+# CI (CI=true) runs the slow tests too, after the default suite (11.7 min on 2 quiet cores in
+# s58, 19 beside other work); elsewhere GRIP_BENCH_SLOW=1 asks for them (or `tox -e slow`). Before s58 nothing
 # ran them unasked, and two of them had failed unnoticed for sessions.
 if [ "${CI:-}" = true ] || [ "${GRIP_BENCH_SLOW:-0}" = 1 ]; then
     python -m pytest -q -p no:cacheprovider ${XDIST[@]+"${XDIST[@]}"} -m slow
