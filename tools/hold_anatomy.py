@@ -54,7 +54,7 @@ def contacts_through(scene, up) -> dict:
 
     from grip_bench.core import constants as C
     from grip_bench.metrics import hold as H
-    from tools.hold_early_stop import record
+    from tools.hold_early_stop import record, verdict
 
     seen = []
 
@@ -71,10 +71,8 @@ def contacts_through(scene, up) -> dict:
                 "settled": 0, "force": 0.0, "after": 0}
     end = checks[-1]
     at = next((c for c in checks if c.step * C.SIM_DT >= AFTER_S - 1e-12), end)
-    held = (not H.broken_rules(scene.depth, settle, seen[1][2])
-            and end.disp < C.HOLD_DISP and end.rot < C.HOLD_ROT)
-    return {"held": bool(held), "settle": settle, "start": seen[0][0], "settled": seen[1][0],
-            "force": seen[1][1], "after": at.ncon}
+    return {"held": verdict(scene, settle, end.disp, end.rot, seen[1][2]), "settle": settle,
+            "start": seen[0][0], "settled": seen[1][0], "force": seen[1][1], "after": at.ncon}
 
 
 def plan_weights(pair, t: int) -> float:

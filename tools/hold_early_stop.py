@@ -121,14 +121,15 @@ def _full_hold(model, data, p0, q0, gravity) -> list[Check]:
     return out
 
 
-def verdict(scene, settle: float, disp: float, rot: float) -> bool:
-    """The hold test's verdict (``metrics.hold.hold``'s rules) on these figures; the wedge
-    rule is not measured here (the probe predates it; it compares a frame's full and stopped
-    holds, which that rule would fail alike)."""
+def verdict(scene, settle: float, disp: float, rot: float, wedge: float = float("nan")) -> bool:
+    """The hold test's verdict (``metrics.hold.hold``'s rules) on these figures. ``wedge``:
+    the settled contacts' inward force (``metrics.hold.inward_force``); NaN, this probe's own
+    use, leaves the wedge rule out (the probe predates it; it compares a frame's full and
+    stopped holds, which that rule would fail alike)."""
     from grip_bench.core import constants as C
     from grip_bench.metrics import hold as H
 
-    return bool(not H.broken_rules(scene.depth, settle, float("nan"))
+    return bool(not H.broken_rules(scene.depth, settle, wedge)
                 and disp < C.HOLD_DISP and rot < C.HOLD_ROT)
 
 
