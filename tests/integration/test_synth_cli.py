@@ -58,7 +58,7 @@ def test_synth_tiny_end_to_end(tmp_path, capsys):
     assert {k: v for k, v in manifest.items() if k not in drop} == \
         {k: v for k, v in m2.items() if k not in drop}
     # every grasping hand's type is in the manifest, and `data info` counts them per family
-    assert manifest["version"] == "2.4" and set(manifest["sequences"]) == {
+    assert manifest["version"] == "2.5" and set(manifest["sequences"]) == {
         f.relative_to(out).as_posix() for f in files}
     info = dataset_info(out)
     # (a regrasping hand's first grasp counts too)

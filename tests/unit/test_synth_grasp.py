@@ -205,3 +205,24 @@ def test_handle_grasp_wraps_the_bar_not_its_end():
     assert g is not None and g.kind == "handle"
     assert abs(float(g.R @ nh @ axis)) < G.HANDLE_PALM_COS
     assert abs(float(g.R @ fh @ axis)) <= G.HANDLE_FINGER_COS + 1e-9
+
+
+def test_a_compact_object_is_pinched_at_its_centre_height_from_2_cm():
+    """SynthGRAB 2.5: a compact object's part whose centre stands at least
+    ``PINCH_CENTRE_MIN`` (2 cm) above the base is pinched at the centre's height (a 44 mm
+    cube: 2.4's 2.5 cm aimed 2 mm above it, 2 cm under the top); a lower part is aimed 2 cm
+    under the top, an object taller than 8 cm likewise; upside down mirrors it."""
+    import trimesh
+
+    def synth(extents):
+        mesh = trimesh.creation.box(extents=extents)
+        return G.GraspSynthesizer(mesh, DistanceField(mesh), 1.0,
+                                  rest_height=0.5 * extents[1], grasp_hint="precision")
+
+    cube = synth((0.044, 0.044, 0.044))  # centre 22 mm above the base
+    assert cube.pinch_height(0.0) == 0.0 and cube.pinch_height(0.0, up=-1.0) == 0.0
+    assert cube.pinch_height(-0.01) == pytest.approx(0.022 - 0.02)  # 12 mm up: under the top
+    assert cube.pinch_height(0.01, up=-1.0) == pytest.approx(-(0.022 - 0.02))
+    tall = synth((0.05, 0.1, 0.05))
+    assert tall.pinch_height(0.0) == pytest.approx(0.05 - 0.02)
+    assert G.PINCH_CENTRE_MIN == 0.02

@@ -11,12 +11,13 @@ from dataclasses import dataclass
 import numpy as np
 
 GENERATOR_NAME = "SynthGRAB"
-GENERATOR_VERSION = "2.4"  # 2.1: hook grasps, regrasps in a third of one-handed use sequences;
+GENERATOR_VERSION = "2.5"  # 2.1: hook grasps, regrasps in a third of one-handed use sequences;
 # 2.2: among grasps touching with the same parts, one that can hold the lifted object wins;
 # 2.3: the hand's thumb opposes (its CMC framed for opposition): pinch pads meet head-on and
 # straddle the object, a wrapping thumb opposes before it curls; 2.4: exact pinches (the pads on
 # opposing surface points), handle grasps wrap the bar (never from along it), the large box
-# is an open storage box (its walls' mass, ~1 kg, not a 10.5 kg block)
+# is an open storage box (its walls' mass, ~1 kg, not a 10.5 kg block); 2.5: compact objects
+# are pinched at their centre's height from 2 cm above their base (PINCH_CENTRE_MIN; 2.5 cm)
 
 # GRAB's intents; "use" becomes an object-specific verb as in GRAB's file names.
 INTENTS = ("lift", "pass", "use", "offhand")
