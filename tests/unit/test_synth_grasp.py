@@ -226,3 +226,67 @@ def test_a_compact_object_is_pinched_at_its_centre_height_from_2_cm():
     tall = synth((0.05, 0.1, 0.05))
     assert tall.pinch_height(0.0) == pytest.approx(0.05 - 0.02)
     assert G.PINCH_CENTRE_MIN == 0.02
+
+
+def _box(extents, centre=(0.0, 0.0, 0.0)):
+    import trimesh
+
+    return trimesh.creation.box(extents=extents).apply_translation(centre)
+
+
+def test_cut_depth_sees_a_thin_edge_the_hand_vertices_miss():
+    """SynthGRAB 2.5: a 2 mm plate's edge 6 mm into a 20 mm "hand" cube leaves every hand
+    vertex outside the plate (the one-sided depth is 0), yet :func:`cut_depth` reads 6 mm,
+    as a naive inside-the-box depth of the same points does."""
+    import trimesh
+
+    hand = _box((0.02, 0.02, 0.02))
+    plate = _box((0.04, 0.002, 0.04), centre=(0.024, 0.0, 0.0))  # its -x edge 6 mm in
+    pts, _ = trimesh.remesh.subdivide_to_size(plate.vertices, plate.faces, G.CUT_EDGE)
+    assert (np.abs(hand.vertices[:, 1]) > 0.001).all()  # no hand vertex inside the plate
+
+    inside = (np.abs(pts) < 0.01).all(1)
+    naive = max(0.0, float((0.01 - np.abs(pts[inside])).min(1).max()))
+    depth = G.cut_depth(pts, hand.vertices, hand.faces)
+    assert depth == pytest.approx(naive, abs=1e-9)
+    assert depth == pytest.approx(0.006, abs=1e-9)
+    far = pts + np.array([0.0, 0.0, 0.1])
+    assert G.cut_depth(far, hand.vertices, hand.faces) == 0.0
+
+
+def test_surface_points_are_dense_enough_to_catch_a_rim():
+    """The object's surface is read at its mesh's vertices after subdividing every edge to
+    ``CUT_EDGE`` (2 mm): on a box whose faces are two 5 cm triangles, no surface point is
+    further than a subdivided edge from its nearest neighbour."""
+    from scipy.spatial import cKDTree
+
+    mesh = _box((0.05, 0.05, 0.05))
+    gs = G.GraspSynthesizer(mesh, DistanceField(mesh), 1.0, rest_height=0.025,
+                            grasp_hint="power")
+    pts = gs._surface_points
+    assert len(pts) > 100 * len(mesh.vertices)
+    d, _ = cKDTree(pts).query(pts, k=2)
+    assert d[:, 1].max() <= G.CUT_EDGE + 1e-12
+    assert np.abs(np.abs(pts).max(1) - 0.025).max() < 1e-12  # on the surface
+
+
+def test_search_skips_a_candidate_the_object_cuts(monkeypatch):
+    """The best-scoring valid candidate is taken only when the object's surface reaches at
+    most ``MAX_PENETRATION`` into its hand (:func:`cut_depth`): declared cut, the next one
+    is taken; with every candidate cut the search finds none."""
+    torch.set_num_threads(1)
+    args = ("right", _approach_dirs("right"), np.array([0.0, 0.0, 1.0]))
+    _, _, gs = _synth("cubesmall")
+    best = gs.search(*args, np.random.default_rng(1), kind="precision")
+    v_best = _posed(best, "right")
+
+    def cut_if_best(points, v, faces, margin=0.005):
+        return 1.0 if np.allclose(v, v_best, atol=1e-9) else 0.0
+
+    monkeypatch.setattr(G, "cut_depth", cut_if_best)
+    _, _, gs = _synth("cubesmall")
+    g = gs.search(*args, np.random.default_rng(1), kind="precision")
+    assert g is not None and not np.allclose(g.t, best.t)
+    monkeypatch.setattr(G, "cut_depth", lambda points, v, faces, margin=0.005: 1.0)
+    _, _, gs = _synth("cubesmall")
+    assert gs.search(*args, np.random.default_rng(1), kind="precision") is None

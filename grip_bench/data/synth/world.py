@@ -17,7 +17,8 @@ GENERATOR_VERSION = "2.5"  # 2.1: hook grasps, regrasps in a third of one-handed
 # straddle the object, a wrapping thumb opposes before it curls; 2.4: exact pinches (the pads on
 # opposing surface points), handle grasps wrap the bar (never from along it), the large box
 # is an open storage box (its walls' mass, ~1 kg, not a 10.5 kg block); 2.5: compact objects
-# are pinched at their centre's height from 2 cm above their base (PINCH_CENTRE_MIN; 2.5 cm)
+# are pinched at their centre's height from 2 cm above their base (PINCH_CENTRE_MIN; 2.5 cm),
+# and a grasp the object's surface cuts more than MAX_PENETRATION into is refused (cut_depth)
 
 # GRAB's intents; "use" becomes an object-specific verb as in GRAB's file names.
 INTENTS = ("lift", "pass", "use", "offhand")
