@@ -27,17 +27,6 @@ import grip_bench  # noqa: F401  (first: it pins the numerics, docs/reproducibil
 import numpy as np
 
 
-def surface_points(mesh) -> np.ndarray:
-    """The object's surface (N, 3) in its own frame, as SynthGRAB 2.5 reads it."""
-    import trimesh
-
-    from grip_bench.data.synth.grasp import CUT_EDGE
-
-    v, _ = trimesh.remesh.subdivide_to_size(np.asarray(mesh.vertices), np.asarray(mesh.faces),
-                                            CUT_EDGE)
-    return np.asarray(v, float)
-
-
 def frame_cuts(pair, t: int, points: np.ndarray) -> dict | None:
     """One tested frame: the deepest the object's surface ``points`` (object frame) reach
     into any hand the ground truth holds with, and the deepest hand vertex in the object
@@ -77,7 +66,7 @@ def summarise(rows: list[dict], limit_mm: float) -> dict:
 
 def probe(data_dir: Path, split: str = "test", model_path: str | None = None,
           pred_dir: Path | None = None) -> dict:
-    from grip_bench.data.synth.grasp import MAX_PENETRATION
+    from grip_bench.data.synth.grasp import MAX_PENETRATION, surface_points
     from tools.probe_cli import tested_frames
 
     rows, dense = [], {}

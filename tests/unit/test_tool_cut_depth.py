@@ -8,14 +8,14 @@ import pytest
 import trimesh
 
 from grip_bench.data.synth import grasp as G
-from tools.cut_depth import summarise, surface_points
+from tools.cut_depth import summarise
 
 
-def test_surface_points_subdivide_every_edge_to_the_generators_spacing():
+def test_the_probe_reads_the_generators_surface_points_along_a_rim():
     from scipy.spatial import cKDTree
 
     mesh = trimesh.creation.box(extents=(0.04, 0.002, 0.04))  # a plate with a 2 mm rim
-    pts = surface_points(mesh)
+    pts = G.surface_points(mesh)
     d, _ = cKDTree(pts).query(pts, k=2)
     assert d[:, 1].max() <= G.CUT_EDGE + 1e-12
     rim = pts[np.isclose(pts[:, 0], 0.02)]

@@ -1133,19 +1133,24 @@ class GraspSynthesizer:
 
     @functools.cached_property
     def _surface_points(self) -> np.ndarray:
-        """The object's surface, its mesh's edges subdivided to ``CUT_EDGE`` (N, 3): its
-        vertices alone are up to 15 mm apart, and a rim's edge between two of them can cut
-        a finger (:func:`cut_depth`)."""
-        import trimesh
-
-        v, _ = trimesh.remesh.subdivide_to_size(np.asarray(self.mesh.vertices),
-                                                np.asarray(self.mesh.faces), CUT_EDGE)
-        return np.asarray(v, float)
+        """The object's surface as :func:`cut_depth` reads it (:func:`surface_points`)."""
+        return surface_points(self.mesh)
 
     @functools.cached_property
     def _com(self) -> np.ndarray:
         """The object's centre of mass (3,) (uniform density)."""
         return np.asarray(self.mesh.center_mass, float)
+
+
+def surface_points(mesh: trimesh.Trimesh) -> np.ndarray:
+    """The object's surface (N, 3), its mesh's edges subdivided to ``CUT_EDGE``: its
+    vertices alone are up to 15 mm apart, and a rim's edge between two of them can cut a
+    finger (:func:`cut_depth`)."""
+    import trimesh
+
+    v, _ = trimesh.remesh.subdivide_to_size(np.asarray(mesh.vertices), np.asarray(mesh.faces),
+                                            CUT_EDGE)
+    return np.asarray(v, float)
 
 
 def cut_depth(points: np.ndarray, hand_vertices: np.ndarray, hand_faces: np.ndarray,
