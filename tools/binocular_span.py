@@ -1,6 +1,6 @@
 """Does a span across the binoculars' two barrels hold? A probe of a grasp SynthGRAB lacks.
 
-SynthGRAB 2.4 grasps the binoculars with a power grasp from on top, which the articulated
+SynthGRAB (2.4, 2.5) grasps the binoculars with a power grasp from on top, which the articulated
 hold test never holds (docs/physics_hold.md, "Landed in s48": 0 of 24 barrel grasps, and
 one-barrel wraps hold only with fingertips below the table). This probe builds the grasp
 s48 named next: the thumb pad on one barrel's outer face and the index pad on the other's,
