@@ -57,7 +57,7 @@ def test_ground_truth_ranks_best_on_the_articulated_hold_displacement():
     ground truth at any level scores below the undegraded value by more than the validity
     report's tie tolerance but one: 1 mm of temporal jitter (SynthGRAB 2.5: 67.4 against
     72.1 mm; two grasps that fall as ground truth, a wine glass's friction-limited grasp
-    and a medium cube's, hold some jittered frames; docs/physics_hold.md, "Measured in
+    and a medium cube's, hold some jittered frames; docs/physics_hold.md, "Landed in
     s60"). On 2.4 that level was a tie (s53: 76.681 against 76.682 mm)."""
     import pandas as pd
 
